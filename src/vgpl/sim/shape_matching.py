@@ -1,0 +1,46 @@
+"""Rigid shape matching (Mueller et al. 2005): project instances onto rigid motions of their rest shape."""
+
+from __future__ import annotations
+
+import torch
+
+
+def best_rotation(cov: torch.Tensor) -> torch.Tensor:
+    """Rotation R maximising tr(R^T cov) (Procrustes with reflection fix).
+
+    Args: cov [..., 3, 3] = sum_i (p_i - c) (r_i)^T.  Returns: [..., 3, 3] proper rotations.
+    """
+    u, _, vh = torch.linalg.svd(cov)
+    det = torch.linalg.det(u @ vh)
+    fix = torch.ones_like(cov[..., 0])
+    fix[..., 2] = det.sign()
+    return (u * fix.unsqueeze(-2)) @ vh
+
+
+def shape_match(
+    p: torch.Tensor, rest_offsets: torch.Tensor, instance: torch.Tensor, rigid_particle: torch.Tensor, n_instances: int
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Replace the particles of every rigid instance by the best rigid transform of its rest shape.
+
+    Args:
+        p: [B, N, 3] positions.
+        rest_offsets: [N, 3] rest position of each particle minus its instance's rest centroid.
+        instance: [N] instance id of each particle.
+        rigid_particle: [N] bool, True for particles of rigid instances.
+        n_instances: M.
+
+    Returns: (positions [B, N, 3], rotations [B, M, 3, 3], centroids [B, M, 3]).
+    Particles of non-rigid instances are returned unchanged. All particles of a rigid instance are
+    assumed to have equal mass.
+    """
+    b, n, _ = p.shape
+    weight = rigid_particle.to(p.dtype)
+    count = torch.zeros(n_instances, dtype=p.dtype, device=p.device).index_add_(0, instance, weight).clamp_min(1.0)
+    centroid = torch.zeros(b, n_instances, 3, dtype=p.dtype, device=p.device).index_add_(1, instance, p * weight[:, None])
+    centroid = centroid / count[:, None]
+    rel = (p - centroid[:, instance]) * weight[:, None]
+    outer = rel.unsqueeze(-1) * rest_offsets.unsqueeze(-2)  # [B, N, 3, 3]
+    cov = torch.zeros(b, n_instances, 3, 3, dtype=p.dtype, device=p.device).index_add_(1, instance, outer)
+    rot = best_rotation(cov)
+    goal = centroid[:, instance] + torch.einsum("bnij,nj->bni", rot[:, instance], rest_offsets)
+    return torch.where(rigid_particle[None, :, None], goal, p), rot, centroid
