@@ -15,7 +15,9 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
+from vgpl.sim.camera import Camera
 from vgpl.sim.contacts import Bodies
+from vgpl.sim.renderer import SplatRenderer
 from vgpl.sim.shape_matching import shape_match
 
 
@@ -49,6 +51,9 @@ class Scene:
     name: str = ""
     param_names: tuple[str, ...] = ()
     action_dim: int = 0
+    default_camera: dict = {}
+    instance_colors: tuple[tuple[float, float, float], ...] = ()  # RGB of each instance
+    floor_y: float | None = 0.0  # drawn floor height (None: no floor)
 
     def __init__(
         self,
@@ -58,7 +63,9 @@ class Scene:
         dt: float = 1.0 / 60.0,
         substeps: int = 2,
         iterations: int = 4,
+        camera: dict | None = None,
     ) -> None:
+        self.camera = Camera(**{**self.default_camera, **(camera or {})})
         low, high = np.asarray(param_low, dtype=np.float64), np.asarray(param_high, dtype=np.float64)
         if low.shape != (len(self.param_names),) or high.shape != low.shape:
             raise ValueError(
@@ -89,6 +96,11 @@ class Scene:
     @property
     def n_instances(self) -> int:
         return int(self.rigid.shape[0])
+
+    def renderer(self) -> SplatRenderer:
+        """A renderer with this scene's camera, instance colours and (slightly enlarged) radii."""
+        colors = np.asarray(self.instance_colors, dtype=np.float32)[self.instance]
+        return SplatRenderer(self.camera, colors, self.radius * 1.15, self.floor_y)
 
     def sample_params(self, rng: np.random.Generator) -> np.ndarray:
         """[P] parameters uniform in [param_low, param_high]."""

@@ -20,6 +20,8 @@ from vgpl.sim.scene import RolloutSample, Scene, lattice, random_walk_1d
 class FluidCube(Scene):
     name = "fluid_cube"
     param_names = ("viscosity",)
+    default_camera = dict(eye=(0.0, 0.95, 1.35), target=(0.0, 0.05, 0.0), fov_y=45.0)
+    instance_colors = ((0.95, 0.6, 0.15), (0.2, 0.45, 0.9))
     action_dim = 6
 
     def __init__(
@@ -30,6 +32,7 @@ class FluidCube(Scene):
         dt: float = 1.0 / 60.0,
         substeps: int = 2,
         iterations: int = 4,
+        camera: dict | None = None,
         spacing: float = 0.055,
         fluid_shape=(10, 3, 10),
         cube_shape=(4, 3, 4),
@@ -42,7 +45,7 @@ class FluidCube(Scene):
         shake_damping: float = 0.05,
         cube_jitter: float = 0.1,
     ) -> None:
-        super().__init__(list(param_low), list(param_high), n_steps, dt, substeps, iterations)
+        super().__init__(list(param_low), list(param_high), n_steps, dt, substeps, iterations, camera)
         self.spacing, self.h, self.relaxation = spacing, kernel_radius, relaxation
         self.container_half = tuple(container_half)
         self.shake = (shake_noise, shake_spring, shake_damping)

@@ -19,6 +19,9 @@ from vgpl.sim.scene import RolloutSample, Scene, lattice, random_walk_1d
 class MassRope(Scene):
     name = "mass_rope"
     param_names = ("stiffness",)
+    default_camera = dict(eye=(0.13, 2.0, 3.2), target=(0.0, 0.55, 0.0), fov_y=25.0)
+    instance_colors = ((0.85, 0.25, 0.2), (0.9, 0.8, 0.3))
+    floor_y = None
     action_dim = 6
 
     def __init__(
@@ -29,6 +32,7 @@ class MassRope(Scene):
         dt: float = 1.0 / 60.0,
         substeps: int = 4,
         iterations: int = 2,
+        camera: dict | None = None,
         sphere_spacing: float = 0.055,
         rope_particles: int = 14,
         rope_spacing: float = 0.05,
@@ -38,7 +42,7 @@ class MassRope(Scene):
         pin_spring: float = 0.1,
         pin_damping: float = 0.05,
     ) -> None:
-        super().__init__(list(param_low), list(param_high), n_steps, dt, substeps, iterations)
+        super().__init__(list(param_low), list(param_high), n_steps, dt, substeps, iterations, camera)
         ball = lattice((5, 5, 5), sphere_spacing)
         keep = (np.round(ball / sphere_spacing) ** 2).sum(-1) <= 6  # 5x5x5 minus the 44 corner-most points
         self.sphere = ball[keep]

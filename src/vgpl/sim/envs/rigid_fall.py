@@ -16,6 +16,8 @@ from vgpl.sim.scene import RolloutSample, Scene, lattice, rotation_y
 class RigidFall(Scene):
     name = "rigid_fall"
     param_names = ("gravity",)
+    default_camera = dict(eye=(0.2, 0.875, 2.0), target=(0.0, 0.5, 0.0), fov_y=50.0)
+    instance_colors = ((0.85, 0.25, 0.2), (0.25, 0.7, 0.3), (0.25, 0.4, 0.85))
     action_dim = 0
 
     def __init__(
@@ -26,6 +28,7 @@ class RigidFall(Scene):
         dt: float = 1.0 / 60.0,
         substeps: int = 2,
         iterations: int = 4,
+        camera: dict | None = None,
         n_cubes: int = 3,
         cube_size: int = 4,
         spacing: float = 0.05,
@@ -34,7 +37,7 @@ class RigidFall(Scene):
         jitter: float = 0.06,
         friction: float = 0.5,
     ) -> None:
-        super().__init__(list(param_low), list(param_high), n_steps, dt, substeps, iterations)
+        super().__init__(list(param_low), list(param_high), n_steps, dt, substeps, iterations, camera)
         self.cube = lattice((cube_size,) * 3, spacing)
         self.n_cubes, self.spacing = n_cubes, spacing
         self.cube_extent = (cube_size - 1) * spacing + spacing  # particle centres span + one radius each side
