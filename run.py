@@ -1,0 +1,23 @@
+"""The one entry point: ``python run.py task=<name> env=<env> key=value ...`` (Hydra)."""
+
+from __future__ import annotations
+
+import json
+import logging
+
+import hydra
+from omegaconf import DictConfig
+
+log = logging.getLogger("vgpl")
+
+
+@hydra.main(version_base="1.3", config_path="conf", config_name="config")
+def main(cfg: DictConfig) -> None:
+    from vgpl.tasks import run_task
+
+    result = run_task(cfg)
+    log.info("result: %s", json.dumps(result, default=str, indent=1))
+
+
+if __name__ == "__main__":
+    main()

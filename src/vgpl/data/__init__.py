@@ -1,0 +1,1 @@
+"""HDF5 datasets of particle trajectories and rendered video."""

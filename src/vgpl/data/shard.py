@@ -1,0 +1,84 @@
+"""Reading and writing dataset shards (atomically: a killed writer never leaves a file that looks whole)."""
+
+from __future__ import annotations
+
+import datetime
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import h5py
+import numpy as np
+
+from vgpl import __version__
+from vgpl.data.schema import DATASETS, FORMAT_VERSION, DatasetError, validate
+
+
+@dataclass
+class Shard:
+    """One shard in memory. Arrays as in the schema; ``images`` is None when not rendered."""
+
+    positions: np.ndarray
+    velocities: np.ndarray
+    instance: np.ndarray
+    rigid: np.ndarray
+    params: np.ndarray
+    actions: np.ndarray
+    rollout_ids: np.ndarray
+    images: np.ndarray | None
+    attrs: dict
+
+
+def write_shard(path: str | Path, shard: Shard, compression_level: int = 4) -> Path:
+    """Write ``shard`` to ``path`` through a temporary file and an atomic rename."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(path.name + ".tmp")
+    attrs = {
+        **shard.attrs,
+        "format_version": FORMAT_VERSION,
+        "generator_version": __version__,
+        "created": datetime.datetime.now(datetime.timezone.utc).isoformat(),
+    }
+    with h5py.File(tmp, "w") as f:
+        for key in DATASETS:
+            data = getattr(shard, key)
+            chunks = (1, *data.shape[1:]) if data.ndim >= 3 and data.shape[-1] > 0 else None
+            f.create_dataset(key, data=data, chunks=chunks)
+        if shard.images is not None:
+            r, t, h, w, c = shard.images.shape
+            f.create_dataset("images", data=shard.images, chunks=(1, 1, h, w, c), compression="gzip", compression_opts=compression_level)
+        for k, v in attrs.items():
+            f.attrs[k] = v
+    os.replace(tmp, path)
+    return path
+
+
+def read_shard(path: str | Path, images: bool = True) -> Shard:
+    """Validate and load a shard file (``images=False`` skips decoding the video)."""
+    info = validate(path)
+    with h5py.File(path, "r") as f:
+        arrays = {key: f[key][()] for key in DATASETS}
+        video = f["images"][()] if images and "images" in f else None
+    return Shard(**arrays, images=video, attrs=info["attrs"])
+
+
+def shard_is_complete(path: Path, config_hash: str) -> bool:
+    """True when ``path`` is a valid shard written with ``config_hash``.
+
+    Raises DatasetError when the file is a valid shard of a *different* configuration, so that
+    a run with changed settings never silently mixes with (or overwrites) existing data.
+    """
+    if not path.exists():
+        return False
+    try:
+        info = validate(path)
+    except DatasetError:
+        return False  # unreadable leftovers are rewritten
+    found = str(info["attrs"]["config_hash"])
+    if found != config_hash:
+        raise DatasetError(
+            f"{path}: exists with a different configuration (config_hash {found}, this run {config_hash}); "
+            "choose another data.root or delete the folder"
+        )
+    return True

@@ -1,0 +1,32 @@
+"""task=demo (the default job until the learning pipeline lands): a small dataset of every
+environment plus a preview GIF and PNG of each."""
+
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+
+from hydra import compose
+from omegaconf import DictConfig, OmegaConf
+
+from vgpl.data.shard import read_shard
+from vgpl.eval.preview import preview_frames, write_gif, write_png
+from vgpl.tasks.generate import generate
+
+log = logging.getLogger(__name__)
+
+
+def demo(cfg: DictConfig) -> dict:
+    out = Path(cfg.paths.output_dir) / "preview"
+    results = {}
+    for env in cfg.task.envs:
+        env_cfg = compose(config_name="config", overrides=[f"env={env}"]).env
+        sub = OmegaConf.merge(cfg, {"env": env_cfg, "data": {"n_rollouts": cfg.task.n_rollouts}})
+        summary = generate(sub)
+        shard = read_shard(summary["shards"][0])
+        frames = preview_frames(shard)
+        gif = write_gif(frames, out / f"{env}.gif")
+        png = write_png(shard.images[0, len(frames) // 2], out / f"{env}.png")
+        log.info("%s: %d shard(s) under %s, preview %s", env, len(summary["shards"]), summary["root"], gif)
+        results[env] = {**summary, "preview": str(gif), "frame": str(png)}
+    return results
