@@ -82,8 +82,10 @@ class _Frame:
         rigid_w = self.flat_body_inv_mass[body] + angular
         return torch.where(self.rigid[idx], rigid_w, self.inv_mass[idx])
 
-    def apply(self, idx: torch.Tensor, impulse: torch.Tensor) -> torch.Tensor:
-        """Apply impulses [E, 3] at particles ``idx`` (Jacobi: averaged over each body's or particle's contacts)."""
+    def apply(self, idx: torch.Tensor, impulse: torch.Tensor, average_free: bool = True) -> torch.Tensor:
+        """Apply impulses [E, 3] at particles ``idx``. Jacobi: averaged over each body's contacts,
+        and over each free particle's contacts when ``average_free`` (False for half-spaces, whose
+        corrections at a corner are independent and must add up)."""
         b, n, m = self.b, self.n, self.bodies.n_instances
         active = (impulse.abs().sum(-1) > 0).to(impulse.dtype)
         rigid = self.rigid[idx]
@@ -91,7 +93,7 @@ class _Frame:
         free = (~rigid).to(impulse.dtype)[:, None]
         dp = torch.zeros(b * n, 3, dtype=impulse.dtype, device=impulse.device).index_add_(0, idx, free * impulse * self.inv_mass[idx, None])
         cnt = torch.zeros(b * n, dtype=impulse.dtype, device=impulse.device).index_add_(0, idx, active * free[:, 0])
-        flat = self.p.reshape(-1, 3) + dp / cnt.clamp_min(1.0)[:, None]
+        flat = self.p.reshape(-1, 3) + (dp / cnt.clamp_min(1.0)[:, None] if average_free else dp)
         # rigid bodies
         if bool(self.bodies.rigid_particle.any()):
             rw = rigid.to(impulse.dtype)[:, None]
@@ -167,7 +169,7 @@ def project_planes(
         if plane_velocity is not None:
             rel = rel - plane_velocity[scene, k]
         impulse = impulse + _friction_impulse(rel, normal, w, lam, friction)
-    return frame.apply(idx, impulse)
+    return frame.apply(idx, impulse, average_free=False)
 
 
 def push_rigid_out_of_planes(p: torch.Tensor, bodies: Bodies, planes: torch.Tensor) -> torch.Tensor:

@@ -102,11 +102,14 @@ class Scene:
         colors = np.asarray(self.instance_colors, dtype=np.float32)[self.instance]
         return SplatRenderer(self.camera, colors, self.radius * 1.15, self.floor_y)
 
-    def sample_params(self, rng: np.random.Generator) -> np.ndarray:
-        """[P] parameters uniform in [param_low, param_high]."""
-        return rng.uniform(self.param_low, self.param_high).astype(np.float32)
+    def sample_params(self, rng: np.random.Generator, params=None) -> np.ndarray:
+        """[P] parameters uniform in [param_low, param_high], or ``params`` when given (the draw is
+        made either way, so the rest of the rollout's random stream is the same)."""
+        drawn = rng.uniform(self.param_low, self.param_high).astype(np.float32)
+        return drawn if params is None else np.asarray(params, dtype=np.float32).reshape(drawn.shape)
 
-    def sample(self, rng: np.random.Generator) -> RolloutSample:
+    def sample(self, rng: np.random.Generator, params=None) -> RolloutSample:
+        """Draw one rollout's initial state, parameters (or use ``params`` [P]) and actions."""
         raise NotImplementedError
 
     # ---- hooks -------------------------------------------------------------------------------

@@ -1,19 +1,23 @@
-"""Task functions called by run.py: each takes the composed config and returns a summary dict."""
+"""Task functions called by run.py: each takes the composed config and returns a summary dict.
+
+Tasks are imported on first use, so starting one task never imports another's dependencies.
+"""
 
 from __future__ import annotations
 
-from typing import Callable
+import importlib
 
 from omegaconf import DictConfig
 
-from vgpl.tasks.demo import demo
-from vgpl.tasks.generate import generate
-
-TASKS: dict[str, Callable[[DictConfig], dict]] = {"generate": generate, "demo": demo}
+TASKS: dict[str, str] = {
+    "generate": "vgpl.tasks.generate:generate",
+    "demo": "vgpl.tasks.demo:demo",
+}
 
 
 def run_task(cfg: DictConfig) -> dict:
     name = cfg.task.name
     if name not in TASKS:
         raise ValueError(f"unknown task.name '{name}': expected one of {sorted(TASKS)}")
-    return TASKS[name](cfg)
+    module, function = TASKS[name].split(":")
+    return getattr(importlib.import_module(module), function)(cfg)

@@ -21,6 +21,8 @@ def demo(cfg: DictConfig) -> dict:
     results = {}
     for env in cfg.task.envs:
         env_cfg = compose(config_name="config", overrides=[f"env={env}"]).env
+        if cfg.task.get("n_steps"):
+            env_cfg.scene.n_steps = cfg.task.n_steps
         sub = OmegaConf.merge(cfg, {"env": env_cfg, "data": {"n_rollouts": cfg.task.n_rollouts}})
         summary = generate(sub)
         shard = read_shard(summary["shards"][0])

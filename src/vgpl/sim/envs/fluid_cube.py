@@ -61,8 +61,8 @@ class FluidCube(Scene):
         self.rest_offsets = np.concatenate([self.cube, np.zeros_like(self.fluid)]).astype(np.float32)
         self.rest_density = lattice_rest_density(spacing, kernel_radius)
 
-    def sample(self, rng: np.random.Generator) -> RolloutSample:
-        params = self.sample_params(rng)
+    def sample(self, rng: np.random.Generator, params=None) -> RolloutSample:
+        params = self.sample_params(rng, params)
         r = self.spacing / 2
         fluid = self.fluid + np.array([0.0, r + self.fluid_height / 2, 0.0])
         cube_y = r + self.fluid_height + self.spacing + (self.cube[:, 1].max() - self.cube[:, 1].min()) / 2 + 0.02

@@ -68,8 +68,8 @@ class MassRope(Scene):
         below = self.n_sphere + np.arange(self.n_rope - 1, -1, -1)  # mass hanging under segment k
         return gravity * below * self.base_compliance / stiffness
 
-    def sample(self, rng: np.random.Generator) -> RolloutSample:
-        params = self.sample_params(rng)
+    def sample(self, rng: np.random.Generator, params=None) -> RolloutSample:
+        params = self.sample_params(rng, params)
         seg = self.chain_rest + self.static_stretch(float(params[0]))
         depth = np.concatenate([[0.0], np.cumsum(seg)])  # [K+1] distance below the pin of each chain point
         rope = self.pin + np.outer(depth[: self.n_rope], [0.0, -1.0, 0.0])

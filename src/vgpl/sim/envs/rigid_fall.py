@@ -50,8 +50,8 @@ class RigidFall(Scene):
         self.rest_offsets = np.tile(self.cube, (n_cubes, 1)).astype(np.float32)
         self.floor = np.array([0.0, 1.0, 0.0, 0.0], dtype=np.float32)
 
-    def sample(self, rng: np.random.Generator) -> RolloutSample:
-        params = self.sample_params(rng)
+    def sample(self, rng: np.random.Generator, params=None) -> RolloutSample:
+        params = self.sample_params(rng, params)
         cubes, y = [], self.base_height
         for _ in range(self.n_cubes):
             centre = np.array([rng.uniform(-self.jitter, self.jitter), y, rng.uniform(-self.jitter, self.jitter)])

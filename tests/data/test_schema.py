@@ -1,0 +1,72 @@
+from __future__ import annotations
+
+import shutil
+
+import h5py
+import numpy as np
+import pytest
+
+from vgpl.data.schema import DatasetError, validate
+from vgpl.data.shard import read_shard, write_shard
+from vgpl.tasks.generate import plan_shards, scene_attrs, simulate_shard
+from vgpl.sim.envs import make_scene
+
+
+@pytest.fixture(scope="module")
+def shard_file(tmp_path_factory):
+    scene = make_scene("mass_rope", n_steps=6)
+    plan = plan_shards(3, 1.0, 3)[0]
+    shard = simulate_shard(scene, plan, seed=0, batch_size=3, render=True, device="cpu")
+    shard.attrs = {**scene_attrs(scene, 0), "split": "train", "shard": 0, "config_hash": "abc"}
+    return write_shard(tmp_path_factory.mktemp("ds") / "shard_00000.h5", shard)
+
+
+def test_round_trip(shard_file):
+    s = read_shard(shard_file)
+    assert s.positions.shape == (3, 6, 95, 3) and s.positions.dtype == np.float32
+    assert s.images.shape == (3, 6, 120, 160, 3) and s.images.dtype == np.uint8
+    assert s.actions.shape == (3, 6, 6)
+    assert list(s.attrs["param_names"]) == ["stiffness"]
+    assert s.instance.shape == (95,) and s.rigid.tolist() == [True, False]
+    with h5py.File(shard_file) as f:
+        assert f["images"].compression == "gzip" and f["images"].chunks == (1, 1, 120, 160, 3)
+    assert not shard_file.with_name(shard_file.name + ".tmp").exists()
+
+
+def test_truncated_file_is_named(shard_file, tmp_path):
+    bad = tmp_path / "truncated.h5"
+    bad.write_bytes(shard_file.read_bytes()[:4000])
+    with pytest.raises(DatasetError, match="truncated.h5.*not a readable HDF5"):
+        validate(bad)
+
+
+def test_foreign_hdf5_is_named(tmp_path):
+    other = tmp_path / "other.h5"
+    with h5py.File(other, "w") as f:
+        f["x"] = np.zeros(3)
+    with pytest.raises(DatasetError, match="other.h5.*format_version"):
+        validate(other)
+
+
+def test_missing_key_is_named(shard_file, tmp_path):
+    broken = tmp_path / "broken.h5"
+    shutil.copy(shard_file, broken)
+    with h5py.File(broken, "a") as f:
+        del f["params"]
+    with pytest.raises(DatasetError, match="broken.h5.*'params' missing"):
+        validate(broken)
+
+
+def test_inconsistent_shape_is_named(shard_file, tmp_path):
+    broken = tmp_path / "shape.h5"
+    shutil.copy(shard_file, broken)
+    with h5py.File(broken, "a") as f:
+        del f["velocities"]
+        f["velocities"] = np.zeros((3, 6, 94, 3), np.float32)
+    with pytest.raises(DatasetError, match="shape.h5.*'velocities'.*N=95"):
+        validate(broken)
+
+
+def test_missing_file_is_named(tmp_path):
+    with pytest.raises(DatasetError, match="nope.h5: no such dataset file"):
+        validate(tmp_path / "nope.h5")

@@ -1,0 +1,138 @@
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import h5py
+import numpy as np
+import pytest
+from hydra import compose, initialize_config_dir
+
+from tests.conftest import REPO
+from vgpl.data.schema import DatasetError, validate
+from vgpl.data.shard import read_shard
+import vgpl.tasks.generate as gen
+from vgpl.tasks.generate import generate, plan_shards
+
+
+def config(root, *overrides):
+    with initialize_config_dir(str(REPO / "conf"), version_base="1.3"):
+        cfg = compose(
+            "config",
+            overrides=[
+                "task=generate", "env=rigid_fall", "env.scene.n_steps=8", f"data.root={root}",
+                "data.n_rollouts=7", "data.shard_size=2", "data.batch_size=2", "data.progress=false",
+                "paths.output_dir=" + str(root), *overrides,
+            ],
+        )
+    return cfg
+
+
+def test_plan_splits_train_and_test_without_overlap():
+    plans = plan_shards(20, 0.9, 4)
+    ids = [g for p in plans for g in p.rollouts]
+    assert sorted(ids) == list(range(20))
+    assert [p.split for p in plans].count("test") == 1 and plans[-1].rollouts == (18, 19)
+    with pytest.raises(ValueError, match="data.train_fraction"):
+        plan_shards(10, 1.5, 4)
+
+
+def test_generate_writes_valid_shards_that_never_repeat_a_rollout(tmp_path):
+    summary = generate(config(tmp_path))
+    assert summary["written"] == 4 and summary["rollouts_written"] == 7  # train 6 (3 shards), test 1 (1)
+    shards = [read_shard(p) for p in summary["shards"]]
+    ids = np.concatenate([s.rollout_ids for s in shards])
+    assert sorted(ids.tolist()) == list(range(7))
+    starts = np.concatenate([s.positions[:, 0] for s in shards]).reshape(7, -1)
+    assert len({row.tobytes() for row in starts}) == 7  # every rollout starts differently
+    params = np.concatenate([s.params for s in shards])
+    assert len(set(params[:, 0].tolist())) == 7 and (params >= -15).all() and (params <= -5).all()
+    assert validate(summary["shards"][0])["attrs"]["split"] == "train"
+
+
+def test_same_seed_same_bytes_other_seed_other_data(tmp_path):
+    a = generate(config(tmp_path / "a"))
+    b = generate(config(tmp_path / "b"))
+    c = generate(config(tmp_path / "c", "seed=1"))
+    for pa, pb, pc in zip(a["shards"], b["shards"], c["shards"]):
+        with h5py.File(pa) as fa, h5py.File(pb) as fb, h5py.File(pc) as fc:
+            for key in ("positions", "images", "params"):
+                assert fa[key][()].tobytes() == fb[key][()].tobytes()
+            assert fa["positions"][()].tobytes() != fc["positions"][()].tobytes()
+
+
+def test_killed_run_resumes_without_rewriting_finished_shards(tmp_path, monkeypatch):
+    cfg = config(tmp_path)
+    real_write, calls = gen.write_shard, []
+
+    def dying_write(path, shard, level):
+        if len(calls) == 2:
+            # the process dies while writing the third shard: a partial temporary file is left
+            path.with_name(path.name + ".tmp").write_bytes(b"partial")
+            raise KeyboardInterrupt
+        calls.append(path)
+        return real_write(path, shard, level)
+
+    monkeypatch.setattr(gen, "write_shard", dying_write)
+    with pytest.raises(KeyboardInterrupt):
+        generate(cfg)
+    finished = {p: p.stat().st_mtime_ns for p in calls}
+    monkeypatch.setattr(gen, "write_shard", real_write)
+    summary = generate(cfg)
+    assert summary["skipped"] == 2 and summary["written"] == 2
+    assert all(p.stat().st_mtime_ns == t for p, t in finished.items())  # nothing rewritten
+    for p in summary["shards"]:
+        validate(p)
+    again = generate(cfg)
+    assert again["written"] == 0 and again["skipped"] == 4
+
+
+def test_workers_split_the_shards(tmp_path):
+    w0 = generate(config(tmp_path, "data.num_workers=2", "data.worker=0"))
+    w1 = generate(config(tmp_path, "data.num_workers=2", "data.worker=1"))
+    assert set(w0["shards"]).isdisjoint(w1["shards"])
+    assert w0["written"] + w1["written"] == 4
+    with pytest.raises(ValueError, match="data.worker"):
+        generate(config(tmp_path, "data.num_workers=2", "data.worker=2"))
+
+
+def test_changed_config_never_overwrites_existing_data(tmp_path):
+    generate(config(tmp_path))
+    before = (tmp_path / "rigid_fall/train/shard_00000.h5").read_bytes()
+    with pytest.raises(DatasetError, match="shard_00000.h5: exists with a different configuration"):
+        generate(config(tmp_path, "env.scene.param_low=[-12.0]"))
+    assert (tmp_path / "rigid_fall/train/shard_00000.h5").read_bytes() == before
+
+
+def run_py(*args, cwd):
+    return subprocess.run([sys.executable, str(REPO / "run.py"), *args], cwd=cwd, capture_output=True, text=True, timeout=300)
+
+
+def test_hydra_multirun_splits_generation_across_jobs(tmp_path):
+    proc = run_py(
+        "-m", "task=generate", "env=mass_rope", "env.scene.n_steps=5", f"data.root={tmp_path}/data",
+        "data.n_rollouts=4", "data.shard_size=1", "data.num_workers=2", "data.worker=0,1", "data.progress=false",
+        f"hydra.sweep.dir={tmp_path}/multirun", cwd=tmp_path,
+    )
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert sorted(p.name for p in (tmp_path / "multirun").iterdir() if p.is_dir()) == ["0", "1"]
+    files = sorted((tmp_path / "data/mass_rope").rglob("*.h5"))
+    assert len(files) == 4
+    assert sorted(int(read_shard(f, images=False).rollout_ids[0]) for f in files) == [0, 1, 2, 3]
+
+
+def test_demo_job_writes_data_and_previews_for_all_envs(tmp_path):
+    proc = run_py("task.n_steps=6", "task.n_rollouts=2", f"data.root={tmp_path}/data", f"hydra.run.dir={tmp_path}/run", cwd=tmp_path)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    for env in ("rigid_fall", "fluid_cube", "mass_rope"):
+        gif = tmp_path / "run/preview" / f"{env}.gif"
+        assert gif.stat().st_size > 1000
+        from PIL import Image
+
+        assert Image.open(gif).n_frames == 6
+        validate(next((tmp_path / "data" / env / "train").glob("*.h5")))
+
+
+def test_bad_option_gives_one_clear_error(tmp_path):
+    proc = run_py("task=generate", "env=water", cwd=tmp_path)
+    assert proc.returncode != 0 and "water" in proc.stderr and "rigid_fall" in proc.stderr
