@@ -33,15 +33,17 @@ def lattice_rest_density(spacing: float, h: float) -> float:
 def density(p: torch.Tensor, i: torch.Tensor, j: torch.Tensor, h: float, rest_density: float) -> torch.Tensor:
     """Normalised density rho / rho_0 of every particle, counting pairs (i, j) and itself.
 
-    Args: p [B, N, 3]; i, j [E] flat pair indices (fluid-fluid); h kernel radius.
+    Args: p [B, N, 3]; i, j [E] flat pair indices; h kernel radius.
     Returns: [B, N] (meaningful for fluid particles).
     """
     b, n, _ = p.shape
     flat = p.reshape(b * n, 3)
-    r2 = ((flat[i] - flat[j]) ** 2).sum(-1)
-    rho = torch.full((b * n,), float(poly6(torch.zeros(()), h)), dtype=p.dtype, device=p.device)
-    rho = rho.index_add(0, i, poly6(r2, h))
-    return rho.reshape(b, n) / rest_density
+    return _density(((flat[i] - flat[j]) ** 2).sum(-1), i, b * n, h, rest_density).reshape(b, n)
+
+
+def _density(r2: torch.Tensor, i: torch.Tensor, size: int, h: float, rest_density: float) -> torch.Tensor:
+    rho = torch.full((size,), float(poly6(torch.zeros(()), h)), dtype=r2.dtype, device=r2.device)
+    return rho.index_add_(0, i, poly6(r2, h)) / rest_density
 
 
 def project_density(
@@ -67,12 +69,11 @@ def project_density(
     flat = p.reshape(b * n, 3)
     w = inv_mass.repeat(b)
     d = flat[i] - flat[j]
-    r = d.norm(dim=-1)
-    rho = density(p, i, j, h, rest_density).reshape(-1)
-    constraint = (rho - 1.0).clamp_min(0.0) * fluid.repeat(b)
-    grad = (spiky_grad_scale(r, h) / rest_density).unsqueeze(-1) * d  # grad_{p_i} of W_ij / rho0
+    r2 = (d * d).sum(-1)
+    constraint = (_density(r2, i, b * n, h, rest_density) - 1.0).clamp_min(0.0) * fluid.repeat(b)
+    grad = (spiky_grad_scale(r2.sqrt(), h) / rest_density).unsqueeze(-1) * d  # grad_{p_i} of W_ij / rho0
     grad_self = torch.zeros_like(flat).index_add_(0, i, grad)
-    denom = (w * (grad_self**2).sum(-1)).index_add(0, i, w[j] * (grad**2).sum(-1)) + relaxation
+    denom = (w * (grad_self**2).sum(-1)).index_add_(0, i, w[j] * (grad**2).sum(-1)) + relaxation
     lam = -constraint / denom
     delta = torch.zeros_like(flat).index_add_(0, i, (lam[i] + lam[j]).unsqueeze(-1) * grad)
     return (flat + w.unsqueeze(-1) * delta).reshape(b, n, 3)

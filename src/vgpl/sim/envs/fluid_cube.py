@@ -79,9 +79,7 @@ class FluidCube(Scene):
         return {
             "xsph": params[:, 0] / 100.0,
             "fluid": fluid,
-            "fluid_pairs": fluid[:, None] & fluid[None, :],
             "density_pairs": fluid[:, None] | fluid[None, :],
-            "mixed_pairs": fluid[:, None] != fluid[None, :],
         }
 
     def container_planes(self, actions: torch.Tensor, frame: float) -> torch.Tensor:
@@ -100,11 +98,13 @@ class FluidCube(Scene):
         return planes
 
     def neighbours(self, x, ctx):
-        return {
-            "fluid": radius_pairs(x, self.h, ctx["fluid_pairs"]),
-            "density": radius_pairs(x, 1.25 * self.h, ctx["density_pairs"]),
-            "contact": radius_pairs(x, 1.6 * self.spacing, ctx["mixed_pairs"]),
-        }
+        # one distance pass per substep; the fluid-only and contact lists are cut from it
+        i, j, dist = radius_pairs(x, 1.1 * self.h, ctx["density_pairs"], return_distance=True)
+        n = x.shape[1]
+        fluid = ctx["fluid"]
+        both = fluid[i % n] & fluid[j % n]
+        contact = ~both & (dist < 1.6 * self.spacing)
+        return {"density": (i, j), "fluid": (i[both], j[both]), "contact": (i[contact], j[contact])}
 
     def project(self, p, x, ctx, pairs, frame):
         p = project_density(p, *pairs["density"], ctx["fluid"], self._bodies.inv_mass, self.h, self.rest_density, self.relaxation)
