@@ -65,7 +65,7 @@ def test_killed_run_resumes_without_rewriting_finished_shards(tmp_path, monkeypa
     cfg = config(tmp_path)
     real_write, calls = gen.write_shard, []
 
-    def dying_write(path, shard, level):
+    def dying_write(path, shard, level=4):
         if len(calls) == 2:
             # the process dies while writing the third shard: a partial temporary file is left
             path.with_name(path.name + ".tmp").write_bytes(b"partial")
@@ -94,6 +94,16 @@ def test_workers_split_the_shards(tmp_path):
     assert w0["written"] + w1["written"] == 4
     with pytest.raises(ValueError, match="data.worker"):
         generate(config(tmp_path, "data.num_workers=2", "data.worker=2"))
+
+
+def test_worker_processes_make_the_same_bytes(tmp_path):
+    one = generate(config(tmp_path / "one"))
+    two = generate(config(tmp_path / "two", "data.processes=2"))
+    assert two["written"] == 4
+    for pa, pb in zip(one["shards"], two["shards"]):
+        with h5py.File(pa) as fa, h5py.File(pb) as fb:
+            assert fa["positions"][()].tobytes() == fb["positions"][()].tobytes()
+            assert fa["images"][()].tobytes() == fb["images"][()].tobytes()
 
 
 def test_changed_config_never_overwrites_existing_data(tmp_path):
@@ -131,6 +141,7 @@ def test_demo_job_writes_data_and_previews_for_all_envs(tmp_path):
 
         assert Image.open(gif).n_frames == 6
         validate(next((tmp_path / "data" / env / "train").glob("*.h5")))
+    assert Image.open(tmp_path / "run/preview/envs.png").size == (3 * 320, 240)
 
 
 def test_bad_option_gives_one_clear_error(tmp_path):

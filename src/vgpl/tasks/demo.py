@@ -10,6 +10,8 @@ from hydra import compose
 from omegaconf import DictConfig, OmegaConf
 
 from vgpl.data.shard import read_shard
+import numpy as np
+
 from vgpl.eval.preview import preview_frames, write_gif, write_png
 from vgpl.tasks.generate import generate
 
@@ -18,7 +20,7 @@ log = logging.getLogger(__name__)
 
 def demo(cfg: DictConfig) -> dict:
     out = Path(cfg.paths.output_dir) / "preview"
-    results = {}
+    results, stills = {}, []
     for env in cfg.task.envs:
         env_cfg = compose(config_name="config", overrides=[f"env={env}"]).env
         if cfg.task.get("n_steps"):
@@ -28,7 +30,11 @@ def demo(cfg: DictConfig) -> dict:
         shard = read_shard(summary["shards"][0])
         frames = preview_frames(shard)
         gif = write_gif(frames, out / f"{env}.gif")
-        png = write_png(shard.images[0, len(frames) // 2], out / f"{env}.png")
+        still = shard.images[0, len(frames) // 2]
+        png = write_png(still, out / f"{env}.png")
+        stills.append(still)
         log.info("%s: %d shard(s) under %s, preview %s", env, len(summary["shards"]), summary["root"], gif)
         results[env] = {**summary, "preview": str(gif), "frame": str(png)}
-    return results
+    montage = write_png(np.concatenate(stills, axis=1).repeat(2, 0).repeat(2, 1), cfg.task.figure or out / "envs.png")
+    log.info("one frame of each environment: %s", montage)
+    return {**results, "figure": str(montage)}
