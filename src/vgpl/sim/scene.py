@@ -140,6 +140,17 @@ class Scene:
     def post_velocity(self, v: torch.Tensor, p: torch.Tensor, ctx: dict, pairs: dict) -> torch.Tensor:
         return v
 
+    def planes_at(self, actions: torch.Tensor) -> torch.Tensor:
+        """Boundary half-spaces at every frame: actions [B, T, A] -> [B, T, K, 4] rows (n, d) with
+        n . x >= d inside (K = 0 where the scene has none). The learned models see them as
+        kinematic ghost nodes."""
+        return actions.new_zeros(*actions.shape[:2], 0, 4)
+
+    @property
+    def kinematic(self) -> np.ndarray:
+        """[N] bool: particles driven by actions (inverse mass 0), e.g. MassRope's pin."""
+        return self.inv_mass == 0
+
     # ---- the loop ----------------------------------------------------------------------------
     def bodies(self, device: torch.device | str = "cpu") -> Bodies:
         """The particle description as tensors on ``device``."""

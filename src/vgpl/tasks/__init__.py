@@ -12,6 +12,8 @@ from omegaconf import DictConfig
 TASKS: dict[str, str] = {
     "generate": "vgpl.tasks.generate:generate",
     "demo": "vgpl.tasks.demo:demo",
+    "train_dynamics": "vgpl.tasks.train_dynamics:train_dynamics",
+    "evaluate_dynamics": "vgpl.tasks.train_dynamics:evaluate_dynamics",
 }
 
 

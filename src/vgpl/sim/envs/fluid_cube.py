@@ -97,6 +97,10 @@ class FluidCube(Scene):
         planes[:, 4, 2], planes[:, 4, 3] = -1.0, -hz
         return planes
 
+    def planes_at(self, actions: torch.Tensor) -> torch.Tensor:
+        b, t, _ = actions.shape
+        return self.container_planes(actions.reshape(b * t, 1, -1), 0.0).reshape(b, t, 5, 4)
+
     def neighbours(self, x, ctx):
         # one distance pass per substep; the fluid-only and contact lists are cut from it
         i, j, dist = radius_pairs(x, 1.1 * self.h, ctx["density_pairs"], return_distance=True)

@@ -68,6 +68,10 @@ class RigidFall(Scene):
         allowed = instance[:, None] != instance[None, :]
         return {"gravity": params[:, 0], "planes": planes, "allowed": allowed}
 
+    def planes_at(self, actions: torch.Tensor) -> torch.Tensor:
+        floor = torch.as_tensor(self.floor, dtype=actions.dtype, device=actions.device)
+        return floor.expand(*actions.shape[:2], 1, 4)
+
     def gravity(self, ctx: dict, batch: int) -> torch.Tensor:
         g = torch.zeros(batch, 1, 3, device=ctx["gravity"].device)
         g[:, 0, 1] = ctx["gravity"]

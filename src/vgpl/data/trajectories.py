@@ -1,0 +1,130 @@
+"""Windows of particle trajectories for the learned modules, and their normalisation statistics.
+
+A sample is a window of ``history`` frames ending at t and ``horizon`` frames after it, from one
+rollout, with the ground-truth grouping G (one-hot instance), rigidness Q, parameters P and the
+kinematic boundaries. Statistics come from the training split only and travel with checkpoints.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import lightning as L
+import numpy as np
+import torch
+from torch.utils.data import DataLoader, Dataset
+
+from vgpl.data.schema import DatasetError
+from vgpl.data.shard import read_shard
+from vgpl.sim.scene import Scene
+
+
+@dataclass
+class Rollouts:
+    """All rollouts of a split in memory (no images): positions [R, T, N, 3], params [R, P],
+    actions [R, T, A], instance [N], rigid [M], param_low/high [P]."""
+
+    positions: torch.Tensor
+    params: torch.Tensor
+    actions: torch.Tensor
+    instance: torch.Tensor
+    rigid: torch.Tensor
+    param_low: torch.Tensor
+    param_high: torch.Tensor
+    env: str
+
+
+def load_split(root: str | Path, env: str, split: str) -> Rollouts:
+    """Read every shard of ``root/env/split`` (validated), in rollout order."""
+    folder = Path(root) / env / split
+    files = sorted(folder.glob("shard_*.h5"))
+    if not files:
+        raise DatasetError(f"{folder}: no shard_*.h5 files (generate them with task=generate env={env})")
+    shards = [read_shard(f, images=False) for f in files]
+    order = np.argsort(np.concatenate([s.rollout_ids for s in shards]))
+    cat = lambda key: torch.as_tensor(np.concatenate([getattr(s, key) for s in shards])[order])  # noqa: E731
+    first = shards[0]
+    return Rollouts(
+        cat("positions"), cat("params"), cat("actions"), torch.as_tensor(first.instance), torch.as_tensor(first.rigid),
+        torch.as_tensor(np.asarray(first.attrs["param_low"], np.float32)), torch.as_tensor(np.asarray(first.attrs["param_high"], np.float32)),
+        str(first.attrs["env"]),
+    )
+
+
+@dataclass
+class NormStats:
+    """Mean and std of per-frame displacements and of positions, each [3]."""
+
+    disp_mean: torch.Tensor
+    disp_std: torch.Tensor
+    pos_mean: torch.Tensor
+    pos_std: torch.Tensor
+
+    @classmethod
+    def from_rollouts(cls, r: Rollouts, kinematic: torch.Tensor | None = None) -> "NormStats":
+        pos = r.positions if kinematic is None else r.positions[:, :, ~kinematic]
+        disp = (pos[:, 1:] - pos[:, :-1]).reshape(-1, 3).double()
+        flat = pos.reshape(-1, 3).double()
+        return cls(disp.mean(0).float(), disp.std(0).float().clamp_min(1e-8), flat.mean(0).float(), flat.std(0).float().clamp_min(1e-8))
+
+
+class TrajectoryWindows(Dataset):
+    """Every window (rollout r, frame t) with ``history`` frames up to t and ``horizon`` after."""
+
+    def __init__(self, rollouts: Rollouts, scene: Scene, history: int = 4, horizon: int = 1, start_frame: int = 0) -> None:
+        self.r, self.history, self.horizon = rollouts, history, horizon
+        n_rollouts, n_frames = rollouts.positions.shape[:2]
+        first = start_frame + history - 1
+        last = n_frames - horizon - 1
+        if last < first:
+            raise ValueError(f"rollouts of {n_frames} frames are too short for history={history} + horizon={horizon}")
+        self.index = [(r, t) for r in range(n_rollouts) for t in range(first, last + 1)]
+        self.planes = scene.planes_at(rollouts.actions)  # [R, T, K, 4]
+        self.grouping = torch.nn.functional.one_hot(rollouts.instance, int(rollouts.rigid.shape[0])).float()
+        self.kinematic = torch.as_tensor(scene.kinematic)
+
+    def __len__(self) -> int:
+        return len(self.index)
+
+    def __getitem__(self, k: int) -> dict:
+        r, t = self.index[k]
+        window = slice(t - self.history + 1, t + self.horizon + 1)
+        return {
+            "positions": self.r.positions[r, window],  # [H + k, N, 3]
+            "planes": self.planes[r, window],  # [H + k, K, 4]
+            "params": self.r.params[r],
+            "grouping": self.grouping,  # [N, M]
+            "rigidness": self.r.rigid.float(),  # [M]
+            "kinematic": self.kinematic,  # [N]
+        }
+
+
+class TrajectoryDataModule(L.LightningDataModule):
+    """Train/test windows of one environment's HDF5 dataset; ``stats`` from the training split."""
+
+    def __init__(self, root: str, scene: Scene, history: int = 4, horizon: int = 1, batch_size: int = 4, num_workers: int = 0, start_frame: int = 0) -> None:
+        super().__init__()
+        self.root, self.scene = root, scene
+        self.history, self.horizon, self.batch_size, self.num_workers, self.start_frame = history, horizon, batch_size, num_workers, start_frame
+        self.train: Rollouts | None = None
+        self.test: Rollouts | None = None
+
+    def setup(self, stage: str | None = None) -> None:
+        if self.train is None:
+            self.train = load_split(self.root, self.scene.name, "train")
+            self.test = load_split(self.root, self.scene.name, "test")
+            n = self.scene.n_particles
+            if self.train.positions.shape[2] != n:
+                raise DatasetError(f"{self.root}/{self.scene.name}: dataset has {self.train.positions.shape[2]} particles, env config has {n}")
+            self.stats = NormStats.from_rollouts(self.train, torch.as_tensor(self.scene.kinematic))
+
+    def _loader(self, rollouts: Rollouts, shuffle: bool) -> DataLoader:
+        ds = TrajectoryWindows(rollouts, self.scene, self.history, self.horizon, self.start_frame)
+        return DataLoader(ds, batch_size=self.batch_size, shuffle=shuffle, num_workers=self.num_workers, drop_last=shuffle)
+
+    def train_dataloader(self) -> DataLoader:
+        return self._loader(self.train, True)
+
+    def val_dataloader(self) -> DataLoader:
+        return self._loader(self.test, False)

@@ -1,0 +1,101 @@
+"""Radius graphs and edge features shared by the learned modules (torch-geometric conventions).
+
+``edge_index`` is [2, E] with row 0 the source j and row 1 the target i (PyG's
+``source_to_target`` flow); messages flow j -> i. A library backend is used when one is importable
+(torch-geometric's own op needs pyg-lib >= 0.6, or torch-cluster); otherwise ours, with the same
+semantics. Neighbours are never truncated: callers get the maximum degree to log.
+"""
+
+from __future__ import annotations
+
+import logging
+
+import torch
+from torch_geometric.utils import degree, to_dense_batch
+
+log = logging.getLogger(__name__)
+
+
+def _library_backend():
+    try:
+        from torch_geometric import typing as pyg_typing
+
+        if getattr(pyg_typing, "WITH_RADIUS", False):
+            from torch_geometric.nn import radius_graph as fn
+
+            return "torch_geometric", fn
+    except ImportError:
+        pass
+    try:
+        from torch_cluster import radius_graph as fn
+
+        return "torch_cluster", fn
+    except ImportError:
+        return None, None
+
+
+BACKEND, _LIBRARY_RADIUS_GRAPH = _library_backend()
+
+
+def own_radius_graph(pos: torch.Tensor, r: float, batch: torch.Tensor | None = None) -> torch.Tensor:
+    """All pairs (j -> i), i != j, of the same graph closer than ``r``.
+
+    Args: pos [N, 3]; batch [N] graph id of each node, sorted (None: one graph).
+    Returns: edge_index [2, E] sorted by target, then source.
+    """
+    if batch is None:
+        batch = torch.zeros(pos.shape[0], dtype=torch.long, device=pos.device)
+    dense, mask = to_dense_batch(pos, batch)  # [B, Nmax, 3], [B, Nmax]
+    b, nmax, _ = dense.shape
+    dist = torch.cdist(dense, dense, compute_mode="donot_use_mm_for_euclid_dist")
+    close = (dist < r) & mask[:, :, None] & mask[:, None, :]
+    close &= ~torch.eye(nmax, dtype=torch.bool, device=pos.device)
+    scene, i, j = close.nonzero(as_tuple=True)
+    ptr = torch.cumsum(mask.sum(1), 0) - mask.sum(1)  # first node of each graph
+    return torch.stack([ptr[scene] + j, ptr[scene] + i])
+
+
+def radius_graph(pos: torch.Tensor, r: float, batch: torch.Tensor | None = None, backend: str | None = None) -> torch.Tensor:
+    """Radius graph with no self loops and no neighbour cap (see :func:`own_radius_graph`).
+
+    ``backend``: None picks the library when importable, "vgpl" forces ours.
+    """
+    if backend != "vgpl" and _LIBRARY_RADIUS_GRAPH is not None:
+        edge_index = _LIBRARY_RADIUS_GRAPH(pos, r, batch, loop=False, max_num_neighbors=pos.shape[0])
+        order = torch.argsort(edge_index[1] * pos.shape[0] + edge_index[0])
+        return edge_index[:, order]
+    return own_radius_graph(pos, r, batch)
+
+
+def max_degree(edge_index: torch.Tensor, num_nodes: int) -> int:
+    """Largest number of incoming edges of a node (log it: nothing is truncated)."""
+    if edge_index.numel() == 0:
+        return 0
+    return int(degree(edge_index[1], num_nodes).max())
+
+
+def plane_ghosts(pos: torch.Tensor, planes: torch.Tensor, batch: torch.Tensor, r: float) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Kinematic "ghost" nodes for half-space boundaries (floor, container walls).
+
+    Every particle closer than ``r`` to a plane gets a ghost node at its projection on the plane,
+    with an edge ghost -> particle, so boundaries enter the graph as nodes like the pin does.
+
+    Args: pos [N, 3]; planes [B, K, 4] rows (n, d) with n . x >= d inside; batch [N].
+    Returns: ghost positions [G, 3], the particle each ghost belongs to [G], its plane id [G].
+    """
+    normals, offsets = planes[batch, :, :3], planes[batch, :, 3]  # [N, K, 3], [N, K]
+    dist = (pos[:, None, :] * normals).sum(-1) - offsets  # [N, K]
+    particle, plane = (dist < r).nonzero(as_tuple=True)
+    ghost = pos[particle] - dist[particle, plane, None] * normals[particle, plane]
+    return ghost, particle, plane
+
+
+def edge_features(pos: torch.Tensor, edge_index: torch.Tensor, grouping: torch.Tensor | None = None) -> torch.Tensor:
+    """[E, 5]: displacement x_i - x_j (3), distance (1), probability that i and j share an instance (1).
+
+    Args: pos [N, 3]; edge_index [2, E]; grouping [N, M] soft instance assignment (None: zeros).
+    """
+    src, dst = edge_index
+    rel = pos[dst] - pos[src]
+    same = (grouping[dst] * grouping[src]).sum(-1, keepdim=True) if grouping is not None else rel.new_zeros(rel.shape[0], 1)
+    return torch.cat([rel, rel.norm(dim=-1, keepdim=True), same], -1)

@@ -1,0 +1,173 @@
+"""DynamicsPrior: DPI-Net (Li et al. 2019) as used by VGPL, on radius graphs with message passing.
+
+Input: the last ``history`` positions of every particle, soft grouping G [B, N, M], rigidness
+Q [B, M], physical parameters P [B, P] (all may be estimates; gradients flow to them), boundary
+planes and which particles are kinematic. Output: the normalised displacement of every particle
+to the next frame: a per-particle (non-rigid) head and a per-instance rigid head (rotation about
+the instance centroid + translation), blended by each particle's rigidness q_i = sum_m G_im Q_m.
+"""
+
+from __future__ import annotations
+
+import lightning as L
+import torch
+from torch import nn
+from torch_geometric.nn import MLP
+
+from vgpl.graph import edge_features, max_degree, plane_ghosts, radius_graph
+from vgpl.nn.propagation import EdgeEncoder, Propagator
+from vgpl.nn.rigid import quaternion_to_matrix, rigid_displacement, soft_centroids
+
+PARTICLE, KINEMATIC, GHOST = 0, 1, 2
+
+
+def add_history_noise(history: torch.Tensor, std: torch.Tensor, movable: torch.Tensor) -> torch.Tensor:
+    """Random-walk noise on a position history [B, H, N, 3] (learning_to_simulate): the noise of
+    step k is the sum of k Gaussian increments of ``std`` [3]; the first frame is left exact, and
+    only ``movable`` [N] particles are perturbed."""
+    steps = torch.randn_like(history[:, 1:]) * std / (history.shape[1] - 1) ** 0.5
+    walk = torch.cat([torch.zeros_like(history[:, :1]), steps.cumsum(1)], 1)
+    return history + walk * movable[None, None, :, None]
+
+
+class DynamicsPrior(L.LightningModule):
+    def __init__(
+        self,
+        param_low: list[float],
+        param_high: list[float],
+        n_instances: int,
+        radius: float,
+        history: int = 4,
+        width: int = 150,
+        propagation_steps: int = 2,
+        lr: float = 1e-4,
+        noise: float = 0.05,
+        lr_decay: float = 1.0,
+    ) -> None:
+        super().__init__()
+        self.save_hyperparameters()
+        n_params = len(param_low)
+        self.register_buffer("param_low", torch.tensor(param_low, dtype=torch.float32))
+        self.register_buffer("param_high", torch.tensor(param_high, dtype=torch.float32))
+        for name in ("disp_mean", "pos_mean"):
+            self.register_buffer(name, torch.zeros(3))
+        for name in ("disp_std", "pos_std"):
+            self.register_buffer(name, torch.ones(3))
+        node_dim = 3 * (history - 1) + 3 + 3 + n_params + 3
+        self.node_encoder = MLP([node_dim, width, width, width], norm=None, plain_last=False)
+        self.edge_encoder = EdgeEncoder(node_dim, 5, width)
+        self.edge_term = nn.Linear(width, width)
+        self.propagator = Propagator(width)
+        self.nonrigid_head = MLP([width, width, width, 3], norm=None)
+        self.rigid_head = MLP([width, width, width, 7], norm=None)
+        self.max_degree_seen = 0
+
+    # ---- normalisation (physics outside the network) -------------------------------------------
+    def set_stats(self, stats) -> None:
+        """Copy normalisation statistics (``NormStats``) into buffers saved with the checkpoint."""
+        for name in ("disp_mean", "disp_std", "pos_mean", "pos_std"):
+            getattr(self, name).copy_(getattr(stats, name))
+
+    def normalise_params(self, params: torch.Tensor) -> torch.Tensor:
+        return 2.0 * (params - self.param_low) / (self.param_high - self.param_low) - 1.0
+
+    def to_displacement(self, normalised: torch.Tensor) -> torch.Tensor:
+        return normalised * self.disp_std + self.disp_mean
+
+    def to_normalised(self, displacement: torch.Tensor) -> torch.Tensor:
+        return (displacement - self.disp_mean) / self.disp_std
+
+    # ---- graph and features ---------------------------------------------------------------------
+    def build_inputs(self, history, grouping, rigidness, params, planes, kinematic):
+        """Node features, edge index and edge features for particles plus boundary ghosts."""
+        b, h, n, _ = history.shape
+        x = history[:, -1]
+        disp = self.to_normalised(history[:, 1:] - history[:, :-1]).permute(0, 2, 1, 3).reshape(b, n, -1)
+        q = (grouping * rigidness[:, None, :]).sum(-1)  # [B, N]
+        centre = torch.einsum("bnm,bmc->bnc", grouping, soft_centroids(x, grouping))
+        offset = q[..., None] * (x - centre) / self.pos_std
+        ptype = torch.zeros(b, n, 3, device=x.device)
+        ptype[..., PARTICLE] = (~kinematic).float()
+        ptype[..., KINEMATIC] = kinematic.float()
+        pnorm = self.normalise_params(params)[:, None, :].expand(b, n, -1)
+        nodes = torch.cat([disp, (x - self.pos_mean) / self.pos_std, ptype, pnorm, offset], -1).reshape(b * n, -1)
+        batch = torch.arange(b, device=x.device).repeat_interleave(n)
+        flat = x.reshape(b * n, 3)
+        edge_index = radius_graph(flat, self.hparams.radius, batch)
+        group_flat = grouping.reshape(b * n, -1)
+        if planes.shape[2] > 0:
+            ghost, owner, plane = plane_ghosts(flat, planes[:, -1], batch, self.hparams.radius)
+            gb = batch[owner]
+            normal = planes[gb, :, plane, :3]  # [G, H, 3]
+            offsets = planes[gb, :, plane, 3]  # [G, H]
+            gdisp = (offsets[:, 1:] - offsets[:, :-1])[..., None] * normal[:, 1:]  # plane motion along its normal
+            gtype = torch.zeros(len(ghost), 3, device=x.device)
+            gtype[:, GHOST] = 1.0
+            gnodes = torch.cat(
+                [self.to_normalised(gdisp).reshape(len(ghost), 3 * (h - 1)), (ghost - self.pos_mean) / self.pos_std, gtype,
+                 self.normalise_params(params)[gb], torch.zeros_like(ghost)], -1)
+            nodes = torch.cat([nodes, gnodes])
+            ids = b * n + torch.arange(len(ghost), device=x.device)
+            edge_index = torch.cat([edge_index, torch.stack([ids, owner])], 1)
+            flat = torch.cat([flat, ghost])
+            group_flat = torch.cat([group_flat, group_flat.new_zeros(len(ghost), group_flat.shape[1])])
+        self.max_degree_seen = max(self.max_degree_seen, max_degree(edge_index, nodes.shape[0]))
+        return nodes, edge_index, edge_features(flat, edge_index, group_flat) / torch.cat([self.pos_std, self.pos_std.norm()[None], torch.ones(1, device=x.device)])
+
+    def forward(self, history, grouping, rigidness, params, planes, kinematic) -> torch.Tensor:
+        """Normalised displacement to the next frame [B, N, 3].
+
+        Args: history [B, H, N, 3]; grouping [B, N, M]; rigidness [B, M]; params [B, P] physical
+        units; planes [B, H, K, 4]; kinematic [N] bool.
+        """
+        b, _, n, _ = history.shape
+        nodes, edge_index, edge_attr = self.build_inputs(history, grouping, rigidness, params, planes, kinematic)
+        code = self.node_encoder(nodes)
+        term = self.edge_term(self.edge_encoder(nodes, edge_attr, edge_index))
+        effect = torch.zeros_like(code)
+        for _ in range(self.hparams.propagation_steps):
+            effect = self.propagator(effect, code, term, edge_index)
+        particle = effect[: b * n].reshape(b, n, -1)
+        nonrigid = self.nonrigid_head(particle)
+        pooled = torch.einsum("bnm,bnw->bmw", grouping, particle) / grouping.sum(1).clamp_min(1e-8)[..., None]
+        out = self.rigid_head(pooled)  # [B, M, 7]
+        identity = torch.tensor([1.0, 0.0, 0.0, 0.0], device=out.device)
+        rotation = quaternion_to_matrix(identity + out[..., :4])
+        translation = self.to_displacement(out[..., 4:])
+        rigid = self.to_normalised(rigid_displacement(history[:, -1], grouping, rotation, translation))
+        q = (grouping * rigidness[:, None, :]).sum(-1, keepdim=True)
+        return (1.0 - q) * nonrigid + q * rigid
+
+    def step(self, history, grouping, rigidness, params, planes, kinematic, kinematic_next=None) -> torch.Tensor:
+        """Next positions [B, N, 3]; kinematic particles take ``kinematic_next`` [B, N, 3] when given."""
+        nxt = history[:, -1] + self.to_displacement(self(history, grouping, rigidness, params, planes, kinematic))
+        if kinematic_next is not None:
+            nxt = torch.where(kinematic[None, :, None], kinematic_next, nxt)
+        return nxt
+
+    # ---- training -------------------------------------------------------------------------------
+    def _loss(self, batch, noise: bool) -> torch.Tensor:
+        h = self.hparams.history
+        kinematic = batch["kinematic"][0]
+        history = batch["positions"][:, :h]
+        if noise and self.hparams.noise > 0:
+            history = add_history_noise(history, self.hparams.noise * self.disp_std, ~kinematic)
+        target = self.to_normalised(batch["positions"][:, h] - history[:, -1])
+        pred = self(history, batch["grouping"], batch["rigidness"], batch["params"], batch["planes"][:, :h], kinematic)
+        return (pred - target).abs()[:, ~kinematic].mean()
+
+    def training_step(self, batch, batch_idx):
+        loss = self._loss(batch, noise=True)
+        self.log("train/loss", loss, prog_bar=True, batch_size=batch["positions"].shape[0])
+        self.log("train/max_degree", float(self.max_degree_seen), batch_size=batch["positions"].shape[0])
+        return loss
+
+    def validation_step(self, batch, batch_idx):
+        loss = self._loss(batch, noise=False)
+        self.log("val/loss", loss, prog_bar=True, batch_size=batch["positions"].shape[0])
+        return loss
+
+    def configure_optimizers(self):
+        opt = torch.optim.Adam(self.parameters(), lr=self.hparams.lr)
+        sched = torch.optim.lr_scheduler.ExponentialLR(opt, gamma=self.hparams.lr_decay)
+        return {"optimizer": opt, "lr_scheduler": {"scheduler": sched, "interval": "epoch"}}

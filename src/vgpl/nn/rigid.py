@@ -1,0 +1,37 @@
+"""Rigid transforms used by the dynamics prior's rigid head (plain functions, tested alone)."""
+
+from __future__ import annotations
+
+import torch
+
+
+def quaternion_to_matrix(q: torch.Tensor) -> torch.Tensor:
+    """Unit rotation matrices [..., 3, 3] from (w, x, y, z) quaternions [..., 4] (normalised here)."""
+    q = q / q.norm(dim=-1, keepdim=True).clamp_min(1e-8)
+    w, x, y, z = q.unbind(-1)
+    return torch.stack(
+        [
+            1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
+            2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x),
+            2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y),
+        ],
+        -1,
+    ).reshape(*q.shape[:-1], 3, 3)
+
+
+def soft_centroids(pos: torch.Tensor, grouping: torch.Tensor) -> torch.Tensor:
+    """Instance centroids [B, M, 3] = sum_i G_im x_i / sum_i G_im; pos [B, N, 3], grouping [B, N, M]."""
+    weight = grouping.sum(1).clamp_min(1e-8)  # [B, M]
+    return torch.einsum("bnm,bnc->bmc", grouping, pos) / weight[..., None]
+
+
+def rigid_displacement(pos: torch.Tensor, grouping: torch.Tensor, rotation: torch.Tensor, translation: torch.Tensor) -> torch.Tensor:
+    """Displacement [B, N, 3] that moves each particle with its instances' rigid motions.
+
+    Particle i of instance m goes to c_m + R_m (x_i - c_m) + t_m; soft grouping averages over m.
+    Args: pos [B, N, 3]; grouping [B, N, M]; rotation [B, M, 3, 3]; translation [B, M, 3].
+    """
+    centre = soft_centroids(pos, grouping)  # [B, M, 3]
+    rel = pos[:, :, None, :] - centre[:, None]  # [B, N, M, 3]
+    moved = centre[:, None] + torch.einsum("bmij,bnmj->bnmi", rotation, rel) + translation[:, None]
+    return torch.einsum("bnm,bnmc->bnc", grouping, moved - pos[:, :, None, :])
