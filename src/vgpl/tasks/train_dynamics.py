@@ -56,7 +56,7 @@ def train_dynamics(cfg: DictConfig) -> dict:
     dm = TrajectoryDataModule(cfg.data.root, scene, history=cfg.model.history, horizon=1, batch_size=cfg.model.batch_size, start_frame=cfg.env.get("start_frame", 0))
     dm.setup()
     model: DynamicsPrior = hydra.utils.instantiate(
-        cfg.model.net, param_low=scene.param_low.tolist(), param_high=scene.param_high.tolist(),
+        cfg.model.net, _convert_="all", param_low=scene.param_low.tolist(), param_high=scene.param_high.tolist(),
         n_instances=scene.n_instances, radius=cfg.env.graph_radius, history=cfg.model.history,
     )
     model.set_stats(dm.stats)
