@@ -20,7 +20,7 @@ def config(tmp: Path, *overrides):
                 "env=rigid_fall", "env.scene.n_steps=30", f"data.root={tmp}/data", "data.n_rollouts=6",
                 "data.shard_size=6", "data.render=false", "data.progress=false", f"paths.output_dir={tmp}/run",
                 "trainer.max_epochs=1", "trainer.limit_train_batches=6", "trainer.limit_val_batches=2",
-                "trainer.enable_progress_bar=false", "eval.n_steps=10", "model.net.width=32", *overrides,
+                "trainer.enable_progress_bar=false", "trainer.log_every_n_steps=2", "eval.n_steps=10", "model.net.width=32", *overrides,
             ],
         )
 
@@ -40,6 +40,18 @@ def test_training_writes_checkpoint_config_and_tensorboard(trained):
     assert set(result) >= {"future_mse_x1e4@1", "future_mse_x1e4@5", "future_mse_x1e4@10"}
     assert 0 < result["future_mse_x1e4@1"] < result["future_mse_x1e4@10"]
     assert result["max_degree"] > 0
+
+
+def test_tensorboard_has_test_metrics_and_a_rollout_video(trained):
+    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+    tmp, result = trained
+    events = EventAccumulator(str(tmp / "run/tensorboard"), size_guidance={"images": 0})  # the whole run folder
+    events.Reload()
+    assert events.Scalars("test/future_mse_x1e4@10")[-1].value == pytest.approx(result["future_mse_x1e4@10"])
+    video = events.Images("test/rollout_truth_vs_prediction")[-1]
+    assert video.encoded_image_string[:6] == b"GIF89a" and (video.width, video.height) == (320, 120)
+    assert {"train/loss", "val/loss"} <= set(events.Tags()["scalars"])
 
 
 def test_evaluation_from_the_checkpoint_alone_reproduces_the_numbers(trained):

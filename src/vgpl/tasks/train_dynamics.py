@@ -17,6 +17,7 @@ from omegaconf import DictConfig, OmegaConf
 from vgpl.data.schema import DatasetError
 from vgpl.data.trajectories import TrajectoryDataModule, TrajectoryWindows, load_split
 from vgpl.eval.rollout import future_mse, rollout
+from vgpl.eval.tensorboard_media import add_gif, rollout_video
 from vgpl.models.dynamics_prior import DynamicsPrior
 from vgpl.sim.scene import Scene
 
@@ -70,9 +71,12 @@ def train_dynamics(cfg: DictConfig) -> dict:
         default_root_dir=str(out),
     )
     trainer.fit(model, dm, ckpt_path=cfg.get("ckpt_path"))
-    metrics, _, _ = evaluate_rollouts(model, scene, cfg.data.root, cfg.eval.observed, cfg.eval.n_steps, cfg.eval.get("max_rollouts"))
+    metrics, pred, truth = evaluate_rollouts(model, scene, cfg.data.root, cfg.eval.observed, cfg.eval.n_steps, cfg.eval.get("max_rollouts"))
+    writer = trainer.logger.experiment
     for key, value in metrics.items():
-        trainer.logger.experiment.add_scalar(f"test/{key}", value, trainer.global_step)
+        writer.add_scalar(f"test/{key}", value, trainer.global_step)
+    add_gif(writer, "test/rollout_truth_vs_prediction", rollout_video(scene.camera, scene.instance, truth[0], pred[0]), trainer.global_step)
+    writer.flush()
     result = {"env": scene.name, "checkpoint": str(ckpt_dir / "last.ckpt"), "max_degree": model.max_degree_seen, **metrics}
     (out / "metrics.json").write_text(json.dumps(result, indent=1))
     log.info("test rollouts: %s", metrics)

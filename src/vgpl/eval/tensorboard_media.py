@@ -1,0 +1,38 @@
+"""TensorBoard media without extra encoders: rollout videos as animated GIF image summaries
+(what ``SummaryWriter.add_video`` writes, minus its moviepy dependency)."""
+
+from __future__ import annotations
+
+import io
+
+import numpy as np
+import torch
+from PIL import Image
+from tensorboard.compat.proto.summary_pb2 import Summary
+
+from vgpl.sim.camera import Camera
+from vgpl.sim.renderer import SplatRenderer
+
+
+def gif_bytes(frames: np.ndarray, fps: int = 15) -> bytes:
+    """Encode frames [T, H, W, 3] uint8 as an animated GIF."""
+    images = [Image.fromarray(f) for f in frames]
+    buffer = io.BytesIO()
+    images[0].save(buffer, format="GIF", save_all=True, append_images=images[1:], duration=int(1000 / fps), loop=0)
+    return buffer.getvalue()
+
+
+def add_gif(writer, tag: str, frames: np.ndarray, step: int, fps: int = 15) -> None:
+    """Log frames [T, H, W, 3] uint8 to a ``torch.utils.tensorboard.SummaryWriter`` as a video."""
+    t, h, w, c = frames.shape
+    image = Summary.Image(height=h, width=w, colorspace=c, encoded_image_string=gif_bytes(frames, fps))
+    writer._get_file_writer().add_summary(Summary(value=[Summary.Value(tag=tag, image=image)]), step)
+
+
+def rollout_video(camera: Camera, instance: np.ndarray, truth: torch.Tensor, pred: torch.Tensor) -> np.ndarray:
+    """Frames [T, H, 2W, 3]: ground truth (left) and prediction (right) of one rollout [T, N, 3],
+    particles drawn from the dataset's camera and coloured by instance."""
+    palette = np.array([[0.85, 0.25, 0.2], [0.2, 0.45, 0.9], [0.25, 0.7, 0.3], [0.95, 0.6, 0.15]], dtype=np.float32)
+    renderer = SplatRenderer(camera, palette[np.asarray(instance) % len(palette)], np.full(len(instance), 0.025))
+    left, right = renderer.render(truth.float()).numpy(), renderer.render(pred.float()).numpy()
+    return np.concatenate([left, right], axis=2)
