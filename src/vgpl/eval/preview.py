@@ -12,16 +12,21 @@ from vgpl.data.shard import Shard
 from vgpl.sim.camera import Camera
 from vgpl.sim.renderer import SplatRenderer
 
-_PALETTE = np.array([[0.85, 0.25, 0.2], [0.2, 0.45, 0.9], [0.25, 0.7, 0.3], [0.95, 0.6, 0.15], [0.6, 0.3, 0.8]], dtype=np.float32)
+PALETTE = np.array([[0.85, 0.25, 0.2], [0.2, 0.45, 0.9], [0.25, 0.7, 0.3], [0.95, 0.6, 0.15], [0.6, 0.3, 0.8]], dtype=np.float32)
+
+
+def particle_frames(camera: Camera, instance: np.ndarray, positions: torch.Tensor, radius: float = 0.012, floor_y: float | None = None) -> np.ndarray:
+    """Frames [T, H, W, 3] uint8 of particle positions [T, N, 3] as dots coloured by instance."""
+    instance = np.asarray(instance)
+    dots = SplatRenderer(camera, PALETTE[instance % len(PALETTE)], np.full(len(instance), radius), floor_y=floor_y)
+    return dots.render(torch.as_tensor(positions).float()).numpy()
 
 
 def preview_frames(shard: Shard, rollout: int = 0, scale: int = 2) -> np.ndarray:
     """[T, H*scale, 2*W*scale, 3] uint8: left, the ground-truth particles as small dots coloured by
     instance (drawn from the stored positions with the stored camera); right, the rendered video."""
     camera = Camera.from_json(str(shard.attrs["camera"]))
-    colors = _PALETTE[shard.instance % len(_PALETTE)]
-    dots = SplatRenderer(camera, colors, np.full(len(shard.instance), 0.012), floor_y=None)
-    left = dots.render(torch.as_tensor(shard.positions[rollout])).numpy()
+    left = particle_frames(camera, shard.instance, shard.positions[rollout])
     right = shard.images[rollout] if shard.images is not None else np.zeros_like(left)
     both = np.concatenate([left, right], axis=2)
     return both.repeat(scale, axis=1).repeat(scale, axis=2)

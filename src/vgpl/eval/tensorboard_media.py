@@ -10,8 +10,8 @@ import torch
 from PIL import Image
 from tensorboard.compat.proto.summary_pb2 import Summary
 
+from vgpl.eval.preview import particle_frames
 from vgpl.sim.camera import Camera
-from vgpl.sim.renderer import SplatRenderer
 
 
 def gif_bytes(frames: np.ndarray, fps: int = 15) -> bytes:
@@ -32,7 +32,5 @@ def add_gif(writer, tag: str, frames: np.ndarray, step: int, fps: int = 15) -> N
 def rollout_video(camera: Camera, instance: np.ndarray, truth: torch.Tensor, pred: torch.Tensor) -> np.ndarray:
     """Frames [T, H, 2W, 3]: ground truth (left) and prediction (right) of one rollout [T, N, 3],
     particles drawn from the dataset's camera and coloured by instance."""
-    palette = np.array([[0.85, 0.25, 0.2], [0.2, 0.45, 0.9], [0.25, 0.7, 0.3], [0.95, 0.6, 0.15]], dtype=np.float32)
-    renderer = SplatRenderer(camera, palette[np.asarray(instance) % len(palette)], np.full(len(instance), 0.025))
-    left, right = renderer.render(truth.float()).numpy(), renderer.render(pred.float()).numpy()
-    return np.concatenate([left, right], axis=2)
+    draw = lambda x: particle_frames(camera, instance, x, radius=0.025, floor_y=0.0)  # noqa: E731
+    return np.concatenate([draw(truth), draw(pred)], axis=2)
