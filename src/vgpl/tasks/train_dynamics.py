@@ -24,18 +24,21 @@ from vgpl.sim.scene import Scene
 log = logging.getLogger(__name__)
 
 
-def evaluate_rollouts(model: DynamicsPrior, scene: Scene, root: str, observed: int, n_steps: int, max_rollouts: int | None = None) -> tuple[dict, torch.Tensor, torch.Tensor]:
-    """Future MSE x 1e4 on the test split: observe ``observed`` frames, roll ``n_steps`` forward.
+def evaluate_rollouts(
+    model: DynamicsPrior, scene: Scene, root: str, observed: int, n_steps: int, max_rollouts: int | None = None, start_frame: int = 0
+) -> tuple[dict, torch.Tensor, torch.Tensor]:
+    """Future MSE x 1e4 on the test split: observe ``observed`` frames from ``start_frame`` on,
+    roll ``n_steps`` forward.
 
     Returns: (metrics, predictions [R, n_steps, N, 3], ground truth [R, n_steps, N, 3]).
     """
     test = load_split(root, scene.name, "test")
     h = model.hparams.history
-    start = observed - h
+    start = start_frame + observed - h
     windows = TrajectoryWindows(test, scene, history=h, horizon=n_steps, start_frame=start)
     n = test.positions.shape[0] if max_rollouts is None else min(max_rollouts, test.positions.shape[0])
-    positions = test.positions[:n, start : observed + n_steps]
-    planes = windows.planes[:n, start : observed + n_steps]
+    positions = test.positions[:n, start : start + h + n_steps]
+    planes = windows.planes[:n, start : start + h + n_steps]
     grouping = windows.grouping.expand(n, -1, -1)
     rigidness = test.rigid.float().expand(n, -1)
     model.eval()
@@ -71,7 +74,9 @@ def train_dynamics(cfg: DictConfig) -> dict:
         default_root_dir=str(out),
     )
     trainer.fit(model, dm, ckpt_path=cfg.get("ckpt_path"))
-    metrics, pred, truth = evaluate_rollouts(model, scene, cfg.data.root, cfg.eval.observed, cfg.eval.n_steps, cfg.eval.get("max_rollouts"))
+    metrics, pred, truth = evaluate_rollouts(
+        model, scene, cfg.data.root, cfg.eval.observed, cfg.eval.n_steps, cfg.eval.get("max_rollouts"), cfg.env.get("start_frame", 0)
+    )
     writer = trainer.logger.experiment
     for key, value in metrics.items():
         writer.add_scalar(f"test/{key}", value, trainer.global_step)
@@ -104,5 +109,7 @@ def evaluate_dynamics(cfg: DictConfig) -> dict:
     test = load_split(root, scene.name, "test")
     if test.positions.shape[2] != scene.n_particles:
         raise DatasetError(f"{root}/{scene.name}: {test.positions.shape[2]} particles, checkpoint {cfg.ckpt_path} expects {scene.n_particles}")
-    metrics, _, _ = evaluate_rollouts(model, scene, root, cfg.eval.observed, cfg.eval.n_steps, cfg.eval.get("max_rollouts"))
+    metrics, _, _ = evaluate_rollouts(
+        model, scene, root, cfg.eval.observed, cfg.eval.n_steps, cfg.eval.get("max_rollouts"), train_cfg.env.get("start_frame", 0)
+    )
     return {"env": scene.name, "checkpoint": str(cfg.ckpt_path), **metrics}

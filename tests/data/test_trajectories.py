@@ -1,0 +1,63 @@
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from vgpl.data.schema import DatasetError
+from vgpl.data.trajectories import NormStats, TrajectoryDataModule, TrajectoryWindows, load_split
+from vgpl.models.dynamics_prior import add_history_noise
+from vgpl.sim.envs import make_scene
+from vgpl.tasks.generate import plan_shards, scene_attrs, simulate_shard
+from vgpl.data.shard import write_shard
+
+
+@pytest.fixture(scope="module")
+def dataset(tmp_path_factory):
+    root = tmp_path_factory.mktemp("traj")
+    scene = make_scene("mass_rope", n_steps=12)
+    for plan in plan_shards(5, 0.8, 2):
+        shard = simulate_shard(scene, plan, seed=0, batch_size=2, render=False, device="cpu")
+        shard.attrs = {**scene_attrs(scene, 0), "split": plan.split, "shard": plan.index, "config_hash": "x"}
+        write_shard(plan.path(root / "mass_rope"), shard)
+    return root, scene
+
+
+def test_windows_cover_every_valid_frame(dataset):
+    root, scene = dataset
+    train = load_split(root, "mass_rope", "train")
+    assert train.positions.shape == (4, 12, 95, 3)
+    ds = TrajectoryWindows(train, scene, history=4, horizon=2)
+    assert len(ds) == 4 * (12 - 4 - 2 + 1)
+    item = ds[0]
+    assert item["positions"].shape == (6, 95, 3) and torch.equal(item["positions"], train.positions[0, :6])
+    assert item["grouping"].sum(-1).eq(1).all() and item["kinematic"].sum() == 1  # the pin
+    late = TrajectoryWindows(train, scene, history=4, horizon=1, start_frame=5)
+    assert torch.equal(late[0]["positions"][0], train.positions[0, 5])
+
+
+def test_statistics_come_from_the_training_split_only(dataset):
+    root, scene = dataset
+    dm = TrajectoryDataModule(str(root), scene)
+    dm.setup()
+    movable = ~torch.as_tensor(scene.kinematic)
+    disp = dm.train.positions[:, 1:, movable] - dm.train.positions[:, :-1, movable]
+    assert torch.allclose(dm.stats.disp_std, disp.reshape(-1, 3).std(0), rtol=1e-4)
+    assert not torch.allclose(dm.stats.pos_mean, NormStats.from_rollouts(dm.test).pos_mean)
+
+
+def test_missing_split_is_named(dataset, tmp_path):
+    with pytest.raises(DatasetError, match="mass_rope/train: no shard_"):
+        load_split(tmp_path, "mass_rope", "train")
+
+
+def test_history_noise_is_a_random_walk_that_spares_kinematic_particles():
+    torch.manual_seed(0)
+    history = torch.zeros(2000, 4, 3, 3)
+    movable = torch.tensor([True, True, False])
+    noisy = add_history_noise(history, torch.tensor([1.0, 2.0, 3.0]), movable)
+    assert torch.equal(noisy[:, 0], history[:, 0]) and torch.equal(noisy[:, :, 2], history[:, :, 2])
+    last = noisy[:, -1, :2].reshape(-1, 3)
+    assert torch.allclose(last.std(0), torch.tensor([1.0, 2.0, 3.0]), rtol=0.05)  # total std at the last frame
+    steps = noisy[:, 1:] - noisy[:, :-1]
+    assert abs(float(steps[:, :, :2, 0].std()) - 1 / np.sqrt(3)) < 0.02  # equal increments
