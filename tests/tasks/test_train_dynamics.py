@@ -59,6 +59,9 @@ def test_evaluation_from_the_checkpoint_alone_reproduces_the_numbers(trained):
     again = evaluate_dynamics(config(tmp, "task=evaluate_dynamics", f"ckpt_path={result['checkpoint']}"))
     for key in ("future_mse_x1e4@1", "future_mse_x1e4@5", "future_mse_x1e4@10"):
         assert again[key] == result[key]
+    from PIL import Image
+
+    assert Image.open(tmp / "run/rollout_truth_vs_prediction.gif").n_frames == 10
 
 
 def test_reloaded_checkpoint_predicts_bit_for_bit(trained):

@@ -17,6 +17,7 @@ from omegaconf import DictConfig, OmegaConf
 from vgpl.data.schema import DatasetError
 from vgpl.data.trajectories import TrajectoryDataModule, TrajectoryWindows, load_split
 from vgpl.eval.rollout import future_mse, rollout
+from vgpl.eval.preview import write_gif
 from vgpl.eval.tensorboard_media import add_gif, rollout_video
 from vgpl.models.dynamics_prior import DynamicsPrior
 from vgpl.sim.scene import Scene
@@ -109,7 +110,11 @@ def evaluate_dynamics(cfg: DictConfig) -> dict:
     test = load_split(root, scene.name, "test")
     if test.positions.shape[2] != scene.n_particles:
         raise DatasetError(f"{root}/{scene.name}: {test.positions.shape[2]} particles, checkpoint {cfg.ckpt_path} expects {scene.n_particles}")
-    metrics, _, _ = evaluate_rollouts(
+    metrics, pred, truth = evaluate_rollouts(
         model, scene, root, cfg.eval.observed, cfg.eval.n_steps, cfg.eval.get("max_rollouts"), train_cfg.env.get("start_frame", 0)
     )
-    return {"env": scene.name, "checkpoint": str(cfg.ckpt_path), **metrics}
+    out = Path(cfg.paths.output_dir)
+    result = {"env": scene.name, "checkpoint": str(cfg.ckpt_path), **metrics}
+    (out / "metrics.json").write_text(json.dumps(result, indent=1))
+    write_gif(rollout_video(scene.camera, scene.instance, truth[0], pred[0]), out / "rollout_truth_vs_prediction.gif", fps=15)
+    return result
