@@ -69,6 +69,11 @@ class NormStats:
         return cls(disp.mean(0).float(), disp.std(0).float().clamp_min(1e-8), flat.mean(0).float(), flat.std(0).float().clamp_min(1e-8))
 
 
+def ground_truth_grouping(rollouts: Rollouts) -> torch.Tensor:
+    """[N, M] one-hot grouping G from the recorded instance ids."""
+    return torch.nn.functional.one_hot(rollouts.instance, int(rollouts.rigid.shape[0])).float()
+
+
 class TrajectoryWindows(Dataset):
     """Every window (rollout r, frame t) with ``history`` frames up to t and ``horizon`` after."""
 
@@ -81,7 +86,7 @@ class TrajectoryWindows(Dataset):
             raise ValueError(f"rollouts of {n_frames} frames are too short for history={history} + horizon={horizon}")
         self.index = [(r, t) for r in range(n_rollouts) for t in range(first, last + 1)]
         self.planes = scene.planes_at(rollouts.actions)  # [R, T, K, 4]
-        self.grouping = torch.nn.functional.one_hot(rollouts.instance, int(rollouts.rigid.shape[0])).float()
+        self.grouping = ground_truth_grouping(rollouts)
         self.kinematic = torch.as_tensor(scene.kinematic)
 
     def __len__(self) -> int:

@@ -15,7 +15,7 @@ from lightning.pytorch.loggers import TensorBoardLogger
 from omegaconf import DictConfig, OmegaConf
 
 from vgpl.data.schema import DatasetError
-from vgpl.data.trajectories import TrajectoryDataModule, TrajectoryWindows, load_split
+from vgpl.data.trajectories import TrajectoryDataModule, ground_truth_grouping, load_split
 from vgpl.eval.rollout import future_mse, rollout
 from vgpl.eval.preview import write_gif
 from vgpl.eval.tensorboard_media import add_gif, rollout_video
@@ -36,15 +36,17 @@ def evaluate_rollouts(
     test = load_split(root, scene.name, "test")
     h = model.hparams.history
     start = start_frame + observed - h
-    windows = TrajectoryWindows(test, scene, history=h, horizon=n_steps, start_frame=start)
+    if start + h + n_steps > test.positions.shape[1]:
+        raise ValueError(f"eval: {start_frame} + {observed} observed + {n_steps} predicted frames exceed the {test.positions.shape[1]}-frame rollouts")
     n = test.positions.shape[0] if max_rollouts is None else min(max_rollouts, test.positions.shape[0])
-    positions = test.positions[:n, start : start + h + n_steps]
-    planes = windows.planes[:n, start : start + h + n_steps]
-    grouping = windows.grouping.expand(n, -1, -1)
+    frames = slice(start, start + h + n_steps)
+    positions = test.positions[:n, frames]
+    planes = scene.planes_at(test.actions[:n, frames])
+    grouping = ground_truth_grouping(test).expand(n, -1, -1)
     rigidness = test.rigid.float().expand(n, -1)
     model.eval()
     with torch.no_grad():
-        pred = rollout(model, positions, grouping, rigidness, test.params[:n], planes, windows.kinematic, n_steps)
+        pred = rollout(model, positions, grouping, rigidness, test.params[:n], planes, torch.as_tensor(scene.kinematic), n_steps)
     truth = positions[:, h:]
     return future_mse(pred, truth), pred, truth
 
