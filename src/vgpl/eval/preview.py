@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import io
 from pathlib import Path
 
 import numpy as np
@@ -32,12 +33,19 @@ def preview_frames(shard: Shard, rollout: int = 0, scale: int = 2) -> np.ndarray
     return both.repeat(scale, axis=1).repeat(scale, axis=2)
 
 
+def gif_bytes(frames: np.ndarray, fps: int = 30) -> bytes:
+    """Encode frames [T, H, W, 3] uint8 as an animated GIF."""
+    images = [Image.fromarray(f) for f in frames]
+    buffer = io.BytesIO()
+    images[0].save(buffer, format="GIF", save_all=True, append_images=images[1:], duration=int(1000 / fps), loop=0)
+    return buffer.getvalue()
+
+
 def write_gif(frames: np.ndarray, path: str | Path, fps: int = 30) -> Path:
     """Write frames [T, H, W, 3] uint8 to an animated GIF."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    images = [Image.fromarray(f) for f in frames]
-    images[0].save(path, save_all=True, append_images=images[1:], duration=int(1000 / fps), loop=0)
+    path.write_bytes(gif_bytes(frames, fps))
     return path
 
 

@@ -3,23 +3,12 @@
 
 from __future__ import annotations
 
-import io
-
 import numpy as np
 import torch
-from PIL import Image
 from tensorboard.compat.proto.summary_pb2 import Summary
 
-from vgpl.eval.preview import particle_frames
+from vgpl.eval.preview import gif_bytes, particle_frames
 from vgpl.sim.camera import Camera
-
-
-def gif_bytes(frames: np.ndarray, fps: int = 15) -> bytes:
-    """Encode frames [T, H, W, 3] uint8 as an animated GIF."""
-    images = [Image.fromarray(f) for f in frames]
-    buffer = io.BytesIO()
-    images[0].save(buffer, format="GIF", save_all=True, append_images=images[1:], duration=int(1000 / fps), loop=0)
-    return buffer.getvalue()
 
 
 def add_gif(writer, tag: str, frames: np.ndarray, step: int, fps: int = 15) -> None:

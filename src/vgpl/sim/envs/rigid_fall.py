@@ -62,8 +62,7 @@ class RigidFall(Scene):
         return RolloutSample(positions, params, np.zeros((self.n_steps, 0), dtype=np.float32))
 
     def prepare(self, params: torch.Tensor, actions: torch.Tensor) -> dict:
-        b = params.shape[0]
-        planes = torch.as_tensor(self.floor, device=params.device).expand(b, 1, 4).contiguous()
+        planes = self.planes_at(actions)[:, 0]  # the floor does not move
         instance = self._bodies.instance
         allowed = instance[:, None] != instance[None, :]
         return {"gravity": params[:, 0], "planes": planes, "allowed": allowed}
