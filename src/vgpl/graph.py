@@ -37,8 +37,9 @@ def _library_backend():
 BACKEND, _LIBRARY_RADIUS_GRAPH = _library_backend()
 
 
-def own_radius_graph(pos: torch.Tensor, r: float, batch: torch.Tensor | None = None) -> torch.Tensor:
-    """All pairs (j -> i), i != j, of the same graph closer than ``r``.
+def own_radius_graph(pos: torch.Tensor, r: float, batch: torch.Tensor | None = None, max_neighbors: int | None = None) -> torch.Tensor:
+    """All pairs (j -> i), i != j, of the same graph closer than ``r``; with ``max_neighbors``,
+    only the nearest ``max_neighbors`` sources of each target (ties: lower index first).
 
     Args: pos [N, 3]; batch [N] graph id of each node, sorted (None: one graph).
     Returns: edge_index [2, E] sorted by target, then source.
@@ -50,16 +51,25 @@ def own_radius_graph(pos: torch.Tensor, r: float, batch: torch.Tensor | None = N
     dist = torch.cdist(dense, dense, compute_mode="donot_use_mm_for_euclid_dist")
     close = (dist < r) & mask[:, :, None] & mask[:, None, :]
     close &= ~torch.eye(nmax, dtype=torch.bool, device=pos.device)
+    if max_neighbors is not None and max_neighbors < nmax - 1:
+        ranked = torch.where(close, dist, torch.full_like(dist, float("inf")))
+        nearest = ranked.topk(max_neighbors, dim=-1, largest=False, sorted=False).indices
+        keep = torch.zeros_like(close).scatter_(-1, nearest, True)
+        close &= keep
     scene, i, j = close.nonzero(as_tuple=True)
     ptr = torch.cumsum(mask.sum(1), 0) - mask.sum(1)  # first node of each graph
     return torch.stack([ptr[scene] + j, ptr[scene] + i])
 
 
-def radius_graph(pos: torch.Tensor, r: float, batch: torch.Tensor | None = None, backend: str | None = None) -> torch.Tensor:
-    """Radius graph with no self loops and no neighbour cap (see :func:`own_radius_graph`).
+def radius_graph(pos: torch.Tensor, r: float, batch: torch.Tensor | None = None, backend: str | None = None,
+                 max_neighbors: int | None = None) -> torch.Tensor:
+    """Radius graph with no self loops (see :func:`own_radius_graph`); no neighbour cap unless
+    ``max_neighbors`` is given (then ours, which keeps the nearest: the libraries keep arbitrary ones).
 
     ``backend``: None picks the library when importable, "vgpl" forces ours.
     """
+    if max_neighbors is not None:
+        return own_radius_graph(pos, r, batch, max_neighbors)
     if backend != "vgpl" and _LIBRARY_RADIUS_GRAPH is not None:
         edge_index = _LIBRARY_RADIUS_GRAPH(pos, r, batch, loop=False, max_num_neighbors=pos.shape[0])
         order = torch.argsort(edge_index[1] * pos.shape[0] + edge_index[0])

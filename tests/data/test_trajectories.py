@@ -61,3 +61,15 @@ def test_history_noise_is_a_random_walk_that_spares_kinematic_particles():
     assert torch.allclose(last.std(0), torch.tensor([1.0, 2.0, 3.0]), rtol=0.05)  # total std at the last frame
     steps = noisy[:, 1:] - noisy[:, :-1]
     assert abs(float(steps[:, :, :2, 0].std()) - 1 / np.sqrt(3)) < 0.02  # equal increments
+
+
+def test_an_axis_without_motion_gets_a_floored_std():
+    from vgpl.data.trajectories import NormStats, Rollouts
+
+    t = torch.arange(10.0)
+    pos = torch.zeros(2, 10, 4, 3)
+    pos[..., 1] = (-0.5 * 9.8 * (t / 60) ** 2)[None, :, None]  # falls straight down: no x or z motion
+    r = Rollouts(pos, torch.zeros(2, 1), torch.zeros(2, 10, 0), torch.zeros(4, dtype=torch.long), torch.ones(1, dtype=torch.bool),
+                 torch.zeros(1), torch.ones(1), "x")
+    stats = NormStats.from_rollouts(r)
+    assert stats.disp_std[0] == pytest.approx(stats.disp_std[1] * 1e-3) and stats.disp_std[1] > 1e-3

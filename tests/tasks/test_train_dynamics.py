@@ -7,6 +7,7 @@ import torch
 from hydra import compose, initialize_config_dir
 
 from tests.conftest import REPO
+from vgpl.checkpoint import CheckpointError
 from vgpl.data.schema import DatasetError
 from vgpl.tasks.generate import generate
 from vgpl.tasks.train_dynamics import evaluate_dynamics, load_dynamics, train_dynamics
@@ -18,9 +19,9 @@ def config(tmp: Path, *overrides):
             "config",
             overrides=[
                 "env=rigid_fall", "env.scene.n_steps=30", f"data.root={tmp}/data", "data.n_rollouts=6",
-                "data.shard_size=6", "data.render=false", "data.progress=false", f"paths.output_dir={tmp}/run",
+                "data.shard_size=6", "data.render=false", "data.progress=false", f"paths.output_dir={tmp}/run", f"paths.ckpt_dir={tmp}/ckpt",
                 "trainer.max_epochs=1", "trainer.limit_train_batches=6", "trainer.limit_val_batches=2",
-                "trainer.enable_progress_bar=false", "trainer.log_every_n_steps=2", "eval.n_steps=10", "model.net.width=32", *overrides,
+                "trainer.enable_progress_bar=false", "trainer.log_every_n_steps=2", "eval.n_steps=10", "model.dynamics.net.width=32", *overrides,
             ],
         )
 
@@ -36,7 +37,7 @@ def test_training_writes_checkpoint_config_and_tensorboard(trained):
     tmp, result = trained
     ckpt = Path(result["checkpoint"])
     assert ckpt.is_file() and (ckpt.parent / "config.yaml").is_file()
-    assert list((tmp / "run/tensorboard").glob("events.out.tfevents.*"))
+    assert list((tmp / "ckpt/dynamics/tensorboard").glob("events.out.tfevents.*"))
     assert set(result) >= {"future_mse_x1e4@1", "future_mse_x1e4@5", "future_mse_x1e4@10"}
     assert 0 < result["future_mse_x1e4@1"] < result["future_mse_x1e4@10"]
     assert result["max_degree"] > 0
@@ -46,7 +47,7 @@ def test_tensorboard_has_test_metrics_and_a_rollout_video(trained):
     from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
     tmp, result = trained
-    events = EventAccumulator(str(tmp / "run/tensorboard"), size_guidance={"images": 0})  # the whole run folder
+    events = EventAccumulator(str(tmp / "ckpt/dynamics/tensorboard"), size_guidance={"images": 0})  # the whole run folder
     events.Reload()
     assert events.Scalars("test/future_mse_x1e4@10")[-1].value == pytest.approx(result["future_mse_x1e4@10"])
     video = events.Images("test/rollout_truth_vs_prediction")[-1]
@@ -78,7 +79,7 @@ def test_reloaded_checkpoint_predicts_bit_for_bit(trained):
 
 
 def test_missing_checkpoint_is_named(tmp_path):
-    with pytest.raises(FileNotFoundError, match="nope.ckpt: no such checkpoint"):
+    with pytest.raises(CheckpointError, match="nope.ckpt: no such checkpoint"):
         evaluate_dynamics(config(tmp_path, "task=evaluate_dynamics", f"ckpt_path={tmp_path}/nope.ckpt"))
 
 

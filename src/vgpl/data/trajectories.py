@@ -22,8 +22,9 @@ from vgpl.sim.scene import Scene
 
 @dataclass
 class Rollouts:
-    """All rollouts of a split in memory (no images): positions [R, T, N, 3], params [R, P],
-    actions [R, T, A], instance [N], rigid [M], param_low/high [P]."""
+    """All rollouts of a split in memory: positions [R, T, N, 3], params [R, P], actions [R, T, A],
+    instance [N], rigid [M], param_low/high [P], rollout_ids [R]; images uint8 [R, T, H, W, 3]
+    when loaded with ``images=True``."""
 
     positions: torch.Tensor
     params: torch.Tensor
@@ -33,23 +34,39 @@ class Rollouts:
     param_low: torch.Tensor
     param_high: torch.Tensor
     env: str
+    rollout_ids: torch.Tensor | None = None
+    images: torch.Tensor | None = None
 
 
-def load_split(root: str | Path, env: str, split: str) -> Rollouts:
-    """Read every shard of ``root/env/split`` (validated), in rollout order."""
+def load_split(root: str | Path, env: str, split: str, images: bool = False, max_rollouts: int | None = None) -> Rollouts:
+    """Read the shards of ``root/env/split`` (validated), in rollout order; the first
+    ``max_rollouts`` rollouts only when given (whole shards are read, then cut)."""
     folder = Path(root) / env / split
     files = sorted(folder.glob("shard_*.h5"))
     if not files:
         raise DatasetError(f"{folder}: no shard_*.h5 files (generate them with task=generate env={env})")
-    shards = [read_shard(f, images=False) for f in files]
-    order = np.argsort(np.concatenate([s.rollout_ids for s in shards]))
+    shards = []
+    for f in files:  # shard files hold consecutive rollouts in order, so the first files suffice
+        shards.append(read_shard(f, images=images))
+        if images and shards[-1].images is None:
+            raise DatasetError(f"{f}: key 'images' missing: the dataset was generated with data.render=false; the visual stages need video")
+        if max_rollouts is not None and sum(len(s.rollout_ids) for s in shards) >= max_rollouts:
+            break
+    order = np.argsort(np.concatenate([s.rollout_ids for s in shards]))[:max_rollouts]
     cat = lambda key: torch.as_tensor(np.concatenate([getattr(s, key) for s in shards])[order])  # noqa: E731
     first = shards[0]
     return Rollouts(
         cat("positions"), cat("params"), cat("actions"), torch.as_tensor(first.instance), torch.as_tensor(first.rigid),
         torch.as_tensor(np.asarray(first.attrs["param_low"], np.float32)), torch.as_tensor(np.asarray(first.attrs["param_high"], np.float32)),
-        str(first.attrs["env"]),
+        str(first.attrs["env"]), cat("rollout_ids"), cat("images") if images else None,
     )
+
+
+def _std(x: torch.Tensor) -> torch.Tensor:
+    """Per-axis std [3], floored at 1e-3 of the largest axis: an axis with no motion (a cube
+    falling straight down) must not turn float noise into huge normalised inputs."""
+    std = x.std(0)
+    return std.clamp_min(max(float(std.max()) * 1e-3, 1e-8)).float()
 
 
 @dataclass
@@ -66,7 +83,7 @@ class NormStats:
         pos = r.positions if kinematic is None else r.positions[:, :, ~kinematic]
         disp = (pos[:, 1:] - pos[:, :-1]).reshape(-1, 3).double()
         flat = pos.reshape(-1, 3).double()
-        return cls(disp.mean(0).float(), disp.std(0).float().clamp_min(1e-8), flat.mean(0).float(), flat.std(0).float().clamp_min(1e-8))
+        return cls(disp.mean(0).float(), _std(disp), flat.mean(0).float(), _std(flat))
 
 
 def ground_truth_grouping(rollouts: Rollouts) -> torch.Tensor:

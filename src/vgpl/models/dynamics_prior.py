@@ -15,6 +15,7 @@ from torch import nn
 from torch_geometric.nn import MLP
 
 from vgpl.graph import edge_features, max_degree, plane_ghosts, radius_graph
+from vgpl.nn.normalisation import NormalisationBuffers
 from vgpl.nn.propagation import EdgeEncoder, Propagator
 from vgpl.nn.rigid import quaternion_to_matrix, rigid_displacement, soft_centroids
 
@@ -30,7 +31,7 @@ def add_history_noise(history: torch.Tensor, std: torch.Tensor, movable: torch.T
     return history + walk * movable[None, None, :, None]
 
 
-class DynamicsPrior(L.LightningModule):
+class DynamicsPrior(NormalisationBuffers, L.LightningModule):
     def __init__(
         self,
         param_low: list[float],
@@ -43,16 +44,12 @@ class DynamicsPrior(L.LightningModule):
         lr: float = 1e-4,
         noise: float = 0.05,
         lr_decay: float = 1.0,
+        rigid_dropout: float = 0.0,
     ) -> None:
         super().__init__()
         self.save_hyperparameters()
         n_params = len(param_low)
-        self.register_buffer("param_low", torch.tensor(param_low, dtype=torch.float32))
-        self.register_buffer("param_high", torch.tensor(param_high, dtype=torch.float32))
-        for name in ("disp_mean", "pos_mean"):
-            self.register_buffer(name, torch.zeros(3))
-        for name in ("disp_std", "pos_std"):
-            self.register_buffer(name, torch.ones(3))
+        self.register_normalisation(param_low, param_high)
         node_dim = 3 * (history - 1) + 3 + 3 + n_params + 3
         self.node_encoder = MLP([node_dim, width, width, width], norm=None, plain_last=False)
         self.edge_encoder = EdgeEncoder(node_dim, 5, width)
@@ -62,15 +59,7 @@ class DynamicsPrior(L.LightningModule):
         self.rigid_head = MLP([width, width, width, 7], norm=None)
         self.max_degree_seen = 0
 
-    # ---- normalisation (physics outside the network) -------------------------------------------
-    def set_stats(self, stats) -> None:
-        """Copy normalisation statistics (``NormStats``) into buffers saved with the checkpoint."""
-        for name in ("disp_mean", "disp_std", "pos_mean", "pos_std"):
-            getattr(self, name).copy_(getattr(stats, name))
-
-    def normalise_params(self, params: torch.Tensor) -> torch.Tensor:
-        return 2.0 * (params - self.param_low) / (self.param_high - self.param_low) - 1.0
-
+    # ---- normalisation (physics outside the network; set_stats, normalise_params: the mixin) -----
     def to_displacement(self, normalised: torch.Tensor) -> torch.Tensor:
         return normalised * self.disp_std + self.disp_mean
 
@@ -150,10 +139,15 @@ class DynamicsPrior(L.LightningModule):
         h = self.hparams.history
         kinematic = batch["kinematic"][0]
         history = batch["positions"][:, :h]
+        rigidness = batch["rigidness"]
         if noise and self.hparams.noise > 0:
             history = add_history_noise(history, self.hparams.noise * self.disp_std, ~kinematic)
+        if noise and self.hparams.rigid_dropout > 0:
+            # a rigid body is also a (stiff) non-rigid one: teaching the per-particle head rigid motion
+            # makes q = 0 a usable input (the no-rigidness ablation) and q's estimate a real choice
+            rigidness = rigidness * (torch.rand_like(rigidness) >= self.hparams.rigid_dropout)
         target = self.to_normalised(batch["positions"][:, h] - history[:, -1])
-        pred = self(history, batch["grouping"], batch["rigidness"], batch["params"], batch["planes"][:, :h], kinematic)
+        pred = self(history, batch["grouping"], rigidness, batch["params"], batch["planes"][:, :h], kinematic)
         return (pred - target).abs()[:, ~kinematic].mean()
 
     def training_step(self, batch, batch_idx):

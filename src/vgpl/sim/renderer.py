@@ -30,6 +30,7 @@ class SplatRenderer:
     """
 
     def __init__(self, camera: Camera, colors: np.ndarray, radius: np.ndarray, floor_y: float | None = 0.0) -> None:
+        self.near = 0.05  # metres: particles closer to the camera (or behind it) are not drawn
         self.camera = camera
         self.colors = torch.as_tensor(np.asarray(colors, dtype=np.float32))
         self.radius = torch.as_tensor(np.asarray(radius, dtype=np.float32))
@@ -66,9 +67,11 @@ class SplatRenderer:
         radius, colors = self.radius.to(device), self.colors.to(device)
         uvz = cam.project(positions.float())  # [B, N, 3]
         f = float(cam.intrinsics[0, 0])
-        z = uvz[..., 2].clamp_min(1e-3)
+        visible = torch.isfinite(uvz).all(-1) & (uvz[..., 2] > self.near)  # [B, N]; predictions may stray
+        z = torch.where(visible, uvz[..., 2], torch.ones_like(uvz[..., 2]))
         rp = f * radius / z  # [B, N] pixel radius
-        half = max(1, math.ceil(float(rp.max()))) if rp.numel() else 1
+        largest = float(rp[visible].max()) if visible.any() else 1.0
+        half = min(max(1, math.ceil(largest)), max(h, w))
         offs = torch.arange(-half, half + 1, device=device)
         dy, dx = torch.meshgrid(offs, offs, indexing="ij")
         dy, dx = dy.reshape(-1), dx.reshape(-1)  # [K]
@@ -77,7 +80,7 @@ class SplatRenderer:
         du = pu.float() + 0.5 - uvz[..., 0, None]
         dv = pv.float() + 0.5 - uvz[..., 1, None]
         q = (du * du + dv * dv) / (rp * rp)[..., None]  # squared normalised distance to the disc centre
-        inside = (q < 1.0) & (pu >= 0) & (pu < w) & (pv >= 0) & (pv < h) & (uvz[..., 2:3] > 1e-3)
+        inside = (q < 1.0) & (pu >= 0) & (pu < w) & (pv >= 0) & (pv < h) & visible[..., None]
         depth = z[..., None] - radius[None, :, None] * torch.sqrt((1.0 - q).clamp_min(0.0))
         key = (depth * _DEPTH_SCALE).long() * (1 << _ID_BITS) + torch.arange(n, device=device)[None, :, None]
         pix = (torch.arange(b, device=device)[:, None, None] * h + pv) * w + pu

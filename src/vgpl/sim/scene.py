@@ -54,6 +54,7 @@ class Scene:
     default_camera: dict = {}
     instance_colors: tuple[tuple[float, float, float], ...] = ()  # RGB of each instance
     floor_y: float | None = 0.0  # drawn floor height (None: no floor)
+    type_names: tuple[str, ...] = ()  # object type of each instance
 
     def __init__(
         self,
@@ -96,6 +97,11 @@ class Scene:
     @property
     def n_instances(self) -> int:
         return int(self.rigid.shape[0])
+
+    @property
+    def instance_types(self) -> list[str]:
+        """Object type of each instance [M] (e.g. cube, fluid): rigidness is reported per type."""
+        return list(self.type_names)
 
     def renderer(self) -> SplatRenderer:
         """A renderer with this scene's camera, instance colours and (slightly enlarged) radii."""

@@ -14,6 +14,13 @@ TASKS: dict[str, str] = {
     "demo": "vgpl.tasks.demo:demo",
     "train_dynamics": "vgpl.tasks.train_dynamics:train_dynamics",
     "evaluate_dynamics": "vgpl.tasks.train_dynamics:evaluate_dynamics",
+    "train_visual": "vgpl.tasks.train_visual:train_visual",
+    "export_proposals": "vgpl.tasks.train_visual:export_proposals",
+    "train_inference": "vgpl.tasks.train_inference:train_inference",
+    "train_baseline": "vgpl.tasks.baseline:train_baseline",
+    "evaluate": "vgpl.tasks.evaluate:evaluate",
+    "report": "vgpl.tasks.evaluate:report",
+    "pipeline": "vgpl.tasks.pipeline:pipeline",
 }
 
 

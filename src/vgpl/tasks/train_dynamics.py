@@ -8,12 +8,10 @@ import logging
 from pathlib import Path
 
 import hydra
-import lightning as L
 import torch
-from lightning.pytorch.callbacks import ModelCheckpoint
-from lightning.pytorch.loggers import TensorBoardLogger
-from omegaconf import DictConfig, OmegaConf
+from omegaconf import DictConfig
 
+from vgpl.checkpoint import load_stage
 from vgpl.data.schema import DatasetError
 from vgpl.data.trajectories import TrajectoryDataModule, ground_truth_grouping, load_split
 from vgpl.eval.rollout import future_mse, rollout
@@ -21,6 +19,7 @@ from vgpl.eval.preview import write_gif
 from vgpl.eval.tensorboard_media import add_gif, rollout_video
 from vgpl.models.dynamics_prior import DynamicsPrior
 from vgpl.sim.scene import Scene
+from vgpl.tasks.stage import fit, setup_run
 
 log = logging.getLogger(__name__)
 
@@ -56,27 +55,20 @@ def _scene(cfg: DictConfig) -> Scene:
 
 
 def train_dynamics(cfg: DictConfig) -> dict:
-    L.seed_everything(cfg.seed, workers=True)
-    torch.set_num_threads(int(cfg.threads))
+    """Train the DynamicsPrior into ``<ckpt_dir>/dynamics/`` and evaluate its test rollouts."""
+    setup_run(cfg)
     scene = _scene(cfg)
     out = Path(cfg.paths.output_dir)
-    dm = TrajectoryDataModule(cfg.data.root, scene, history=cfg.model.history, horizon=1, batch_size=cfg.model.batch_size, start_frame=cfg.env.get("start_frame", 0))
+    out.mkdir(parents=True, exist_ok=True)
+    spec = cfg.model.dynamics
+    dm = TrajectoryDataModule(cfg.data.root, scene, history=spec.history, horizon=1, batch_size=spec.batch_size, start_frame=cfg.env.get("start_frame", 0))
     dm.setup()
     model: DynamicsPrior = hydra.utils.instantiate(
-        cfg.model.net, _convert_="all", param_low=scene.param_low.tolist(), param_high=scene.param_high.tolist(),
-        n_instances=scene.n_instances, radius=cfg.env.graph_radius, history=cfg.model.history,
+        spec.net, _convert_="all", param_low=scene.param_low.tolist(), param_high=scene.param_high.tolist(),
+        n_instances=scene.n_instances, radius=cfg.env.graph_radius, history=spec.history,
     )
     model.set_stats(dm.stats)
-    ckpt_dir = out / "checkpoints"
-    ckpt_dir.mkdir(parents=True, exist_ok=True)
-    OmegaConf.save(cfg, ckpt_dir / "config.yaml", resolve=True)
-    trainer = L.Trainer(
-        **cfg.trainer,
-        logger=TensorBoardLogger(str(out), name="tensorboard", version=""),
-        callbacks=[ModelCheckpoint(dirpath=ckpt_dir, filename="best", monitor="val/loss", save_last=True)],
-        default_root_dir=str(out),
-    )
-    trainer.fit(model, dm, ckpt_path=cfg.get("ckpt_path"))
+    trainer, last = fit(cfg, "dynamics", spec, model, dm)
     metrics, pred, truth = evaluate_rollouts(
         model, scene, cfg.data.root, cfg.eval.observed, cfg.eval.n_steps, cfg.eval.get("max_rollouts"), cfg.env.get("start_frame", 0)
     )
@@ -85,22 +77,15 @@ def train_dynamics(cfg: DictConfig) -> dict:
         writer.add_scalar(f"test/{key}", value, trainer.global_step)
     add_gif(writer, "test/rollout_truth_vs_prediction", rollout_video(scene.camera, scene.instance, truth[0], pred[0]), trainer.global_step)
     writer.flush()
-    result = {"env": scene.name, "checkpoint": str(ckpt_dir / "last.ckpt"), "max_degree": model.max_degree_seen, **metrics}
+    result = {"env": scene.name, "checkpoint": str(last), "max_degree": model.max_degree_seen, **metrics}
     (out / "metrics.json").write_text(json.dumps(result, indent=1))
     log.info("test rollouts: %s", metrics)
     return result
 
 
-def load_dynamics(path: str | Path) -> tuple[DynamicsPrior, DictConfig]:
+def load_dynamics(path: str | Path, env: str | None = None) -> tuple[DynamicsPrior, DictConfig]:
     """Model and resolved training config from a checkpoint path alone (config.yaml beside it)."""
-    path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"{path}: no such checkpoint")
-    config = path.parent / "config.yaml"
-    if not config.is_file():
-        raise FileNotFoundError(f"{config}: missing; evaluation rebuilds the environment from the config saved beside the checkpoint")
-    model = DynamicsPrior.load_from_checkpoint(str(path), map_location="cpu")
-    return model, OmegaConf.load(config)
+    return load_stage(path, DynamicsPrior, env=env)
 
 
 def evaluate_dynamics(cfg: DictConfig) -> dict:

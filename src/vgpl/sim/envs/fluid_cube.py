@@ -19,6 +19,7 @@ from vgpl.sim.scene import RolloutSample, Scene, lattice, random_walk_1d
 
 class FluidCube(Scene):
     name = "fluid_cube"
+    type_names = ("cube", "fluid")
     param_names = ("viscosity",)
     default_camera = dict(eye=(0.0, 0.95, 1.35), target=(0.0, 0.05, 0.0), fov_y=45.0)
     instance_colors = ((0.95, 0.6, 0.15), (0.2, 0.45, 0.9))

@@ -18,6 +18,7 @@ from vgpl.sim.scene import RolloutSample, Scene, lattice, random_walk_1d
 
 class MassRope(Scene):
     name = "mass_rope"
+    type_names = ("sphere", "rope")
     param_names = ("stiffness",)
     default_camera = dict(eye=(0.13, 2.0, 3.2), target=(0.0, 0.55, 0.0), fov_y=25.0)
     instance_colors = ((0.85, 0.25, 0.2), (0.9, 0.8, 0.3))

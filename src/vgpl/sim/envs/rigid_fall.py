@@ -45,6 +45,7 @@ class RigidFall(Scene):
         per = self.cube.shape[0]
         self.instance = np.repeat(np.arange(n_cubes), per)
         self.rigid = np.ones(n_cubes, dtype=bool)
+        self.type_names = ("cube",) * n_cubes
         self.inv_mass = np.ones(n_cubes * per, dtype=np.float32)
         self.radius = np.full(n_cubes * per, spacing / 2, dtype=np.float32)
         self.rest_offsets = np.tile(self.cube, (n_cubes, 1)).astype(np.float32)

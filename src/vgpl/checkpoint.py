@@ -1,0 +1,51 @@
+"""Loading a trained stage from its checkpoint path alone, with one clear error when it does not fit.
+
+Every training task writes ``<ckpt_dir>/<stage>/{last,best}.ckpt`` and the resolved run config
+``config.yaml`` beside them; the config rebuilds the environment, so evaluation needs nothing else.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import hydra
+import torch
+from omegaconf import DictConfig, OmegaConf
+
+
+class CheckpointError(ValueError):
+    """A checkpoint is missing or does not match what it is used for."""
+
+
+def load_stage(path: str | Path, cls, env: str | None = None, n_particles: int | None = None):
+    """(module of class ``cls`` in eval mode on the CPU, its training config).
+
+    Raises CheckpointError naming the file when it is missing, was trained for another stage, or
+    for another environment / particle count than ``env`` / ``n_particles``.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise CheckpointError(f"{path}: no such checkpoint ({cls.__name__}); train it first, or pass its path")
+    config_file = path.parent / "config.yaml"
+    if not config_file.is_file():
+        raise CheckpointError(f"{config_file}: missing; the config saved beside a checkpoint rebuilds its environment")
+    cfg = OmegaConf.load(config_file)
+    raw = torch.load(path, map_location="cpu", weights_only=False)
+    hparams = raw.get("hyper_parameters", {})
+    saved_cls = hparams.get("_class_path", cfg.get("stage_class"))
+    if saved_cls is not None and saved_cls != f"{cls.__module__}.{cls.__name__}":
+        raise CheckpointError(f"{path}: a {saved_cls} checkpoint, expected {cls.__module__}.{cls.__name__}")
+    trained_env = cfg.env.name
+    if env is not None and trained_env != env:
+        raise CheckpointError(f"{path}: trained on env '{trained_env}', used for env '{env}'")
+    if n_particles is not None:
+        have = scene_of(cfg).n_particles
+        if have != n_particles:
+            raise CheckpointError(f"{path}: trained for {have} particles, the data has {n_particles}")
+    model = cls.load_from_checkpoint(str(path), map_location="cpu")
+    return model.eval(), cfg
+
+
+def scene_of(cfg: DictConfig):
+    """The Scene a (training) config describes."""
+    return hydra.utils.instantiate(cfg.env.scene)

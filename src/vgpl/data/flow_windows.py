@@ -1,0 +1,41 @@
+"""Windows of video, actions and ground-truth optical flow for the DensePhysNet baseline."""
+
+from __future__ import annotations
+
+import torch
+from torch.utils.data import Dataset
+
+from vgpl.data.flow import farneback_flow, particle_flow
+from vgpl.data.trajectories import Rollouts
+
+
+class FlowWindows(Dataset):
+    """Item: frames uint8 [T + 1, H, W, 3], actions [T, A], flow [T, H, W, 2] (pixels per frame),
+    params [P]. Windows start at ``start_frame`` and every ``stride``-th frame after it
+    (``stride=None``: only at ``start_frame``, the evaluation protocol)."""
+
+    def __init__(self, rollouts: Rollouts, camera, observed: int, start_frame: int = 0, stride: int | None = None, flow: str = "simulator") -> None:
+        if flow not in ("simulator", "farneback"):
+            raise ValueError(f"model.densephysnet.flow={flow!r}: expected simulator or farneback")
+        self.flow = flow
+        if rollouts.images is None:
+            raise ValueError("FlowWindows needs rollouts loaded with images=True")
+        self.r, self.camera, self.observed = rollouts, camera, observed
+        n_rollouts, n_frames = rollouts.positions.shape[:2]
+        last = n_frames - observed - 1
+        if last < start_frame:
+            raise ValueError(f"rollouts of {n_frames} frames are too short for {start_frame} skipped + {observed} + 1 frames")
+        starts = [start_frame] if stride is None else range(start_frame, last + 1, stride)
+        self.index = [(r, s) for r in range(n_rollouts) for s in starts]
+
+    def __len__(self) -> int:
+        return len(self.index)
+
+    def __getitem__(self, k: int) -> dict:
+        r, s = self.index[k]
+        frames = slice(s, s + self.observed + 1)
+        return {
+            "frames": self.r.images[r, frames], "actions": self.r.actions[r, s : s + self.observed],
+            "flow": particle_flow(self.camera, self.r.positions[r, frames]) if self.flow == "simulator" else farneback_flow(self.r.images[r, frames]),
+            "params": self.r.params[r],
+        }

@@ -1,0 +1,84 @@
+"""Windows for the InferenceModule: T observed frames of VisualPrior proposals, with the ground
+truth of those frames and of ``horizon`` frames after them."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import lightning as L
+import torch
+from torch.utils.data import DataLoader, Dataset
+
+from vgpl.data.proposals import Proposals, read_proposals
+from vgpl.data.schema import DatasetError
+from vgpl.data.trajectories import NormStats, Rollouts, load_split
+from vgpl.sim.scene import Scene
+
+
+def proposals_path(root: str | Path, env: str, split: str) -> Path:
+    return Path(root) / env / "proposals" / f"{split}.h5"
+
+
+class GroundingWindows(Dataset):
+    """Item: proposals [T, N, 3], logits [T, N, M], positions [T + k, N, 3] (truth), planes
+    [T + k, K, 4], params [P], kinematic [N]. Windows start at ``start_frame`` and every
+    ``stride``-th frame after it, up to ``start_frame + span`` when ``span`` is given."""
+
+    def __init__(self, rollouts: Rollouts, proposals: Proposals, scene: Scene, observed: int, horizon: int,
+                 start_frame: int = 0, stride: int = 1, span: int | None = None) -> None:
+        self.r, self.p, self.observed, self.horizon = rollouts, proposals, observed, horizon
+        n_rollouts, n_frames = rollouts.positions.shape[:2]
+        last = n_frames - observed - horizon
+        if last < start_frame:
+            raise ValueError(f"rollouts of {n_frames} frames are too short for {start_frame} skipped + {observed} observed + {horizon} future frames")
+        if span is not None:
+            last = min(last, start_frame + span)
+        self.index = [(r, s) for r in range(n_rollouts) for s in range(start_frame, last + 1, stride)]
+        self.planes = scene.planes_at(rollouts.actions)
+        self.kinematic = torch.as_tensor(scene.kinematic)
+
+    def __len__(self) -> int:
+        return len(self.index)
+
+    def __getitem__(self, k: int) -> dict:
+        r, s = self.index[k]
+        seen, full = slice(s, s + self.observed), slice(s, s + self.observed + self.horizon)
+        return {
+            "proposals": self.p.positions[r, seen], "logits": self.p.logits[r, seen],
+            "positions": self.r.positions[r, full], "planes": self.planes[r, full],
+            "params": self.r.params[r], "kinematic": self.kinematic,
+        }
+
+
+class GroundingDataModule(L.LightningDataModule):
+    def __init__(self, root: str, scene: Scene, observed: int = 10, horizon: int = 5, batch_size: int = 2,
+                 start_frame: int = 0, stride: int = 1, span: int | None = None, num_workers: int = 0) -> None:
+        super().__init__()
+        self.span = span
+        self.root, self.scene = root, scene
+        self.observed, self.horizon, self.batch_size = observed, horizon, batch_size
+        self.start_frame, self.stride, self.num_workers = start_frame, stride, num_workers
+        self.train: Rollouts | None = None
+
+    def setup(self, stage: str | None = None) -> None:
+        if self.train is None:
+            env = self.scene.name
+            self.train_proposals = read_proposals(proposals_path(self.root, env, "train"))
+            self.test_proposals = read_proposals(proposals_path(self.root, env, "test"))
+            # the proposals cover the first R rollouts of each split
+            self.train = load_split(self.root, env, "train", max_rollouts=len(self.train_proposals.rollout_ids))
+            self.test = load_split(self.root, env, "test", max_rollouts=len(self.test_proposals.rollout_ids))
+            for split, r, p in (("train", self.train, self.train_proposals), ("test", self.test, self.test_proposals)):
+                if not torch.equal(r.rollout_ids, p.rollout_ids):
+                    raise DatasetError(f"{proposals_path(self.root, env, split)}: 'rollout_ids' do not match the dataset's; re-export with task=export_proposals")
+            if self.train_proposals.positions.shape[2] != self.scene.n_particles:
+                raise DatasetError(f"{proposals_path(self.root, env, 'train')}: {self.train_proposals.positions.shape[2]} particles, env {env} has {self.scene.n_particles}")
+            self.stats = NormStats.from_rollouts(self.train, torch.as_tensor(self.scene.kinematic))
+
+    def train_dataloader(self) -> DataLoader:
+        ds = GroundingWindows(self.train, self.train_proposals, self.scene, self.observed, self.horizon, self.start_frame, self.stride, self.span)
+        return DataLoader(ds, batch_size=self.batch_size, shuffle=True, num_workers=self.num_workers, drop_last=len(ds) > self.batch_size)
+
+    def val_dataloader(self) -> DataLoader:
+        ds = GroundingWindows(self.test, self.test_proposals, self.scene, self.observed, self.horizon, self.start_frame, self.observed, self.span)
+        return DataLoader(ds, batch_size=self.batch_size, shuffle=False, num_workers=self.num_workers)

@@ -1,0 +1,91 @@
+"""Particle proposals of the VisualPrior over whole videos, and their HDF5 file.
+
+File (one per split, written atomically): positions float32 [R, T, N, 3] (metres), grouping
+logits float32 [R, T, N, M], rollout_ids int64 [R]; attrs: env, split, visual_checkpoint,
+format_version.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import h5py
+import numpy as np
+import torch
+from tqdm.auto import tqdm
+
+from vgpl.data.schema import DatasetError
+
+PROPOSALS_VERSION = 1
+
+
+@dataclass
+class Proposals:
+    positions: torch.Tensor  # [R, T, N, 3]
+    logits: torch.Tensor  # [R, T, N, M]
+    rollout_ids: torch.Tensor  # [R]
+    attrs: dict
+
+
+@torch.no_grad()
+def propose_videos(model, images: torch.Tensor, batch_size: int = 64, progress: bool = False) -> tuple[torch.Tensor, torch.Tensor]:
+    """Slide the model's F-frame window one frame at a time over each video and keep the last
+    frame of every window (the paper's temporal protocol); the first F - 1 frames come from the
+    first window.
+
+    Args: images uint8 [R, T, H, W, 3]. Returns positions [R, T, N, 3], logits [R, T, N, M].
+    """
+    model.eval()
+    f = model.hparams.frames
+    r, t = images.shape[:2]
+    if t < f:
+        raise ValueError(f"videos of {t} frames are shorter than the visual prior's {f}-frame window")
+    starts = [(i, s) for i in range(r) for s in range(t - f + 1)]
+    pos = torch.zeros(r, t, model.hparams.n_particles, 3)
+    logits = torch.zeros(r, t, model.hparams.n_particles, model.hparams.n_instances)
+    for k in tqdm(range(0, len(starts), batch_size), desc="proposals", disable=not progress, unit="batch"):
+        chunk = starts[k : k + batch_size]
+        frames = torch.stack([images[i, s : s + f] for i, s in chunk])
+        p, g = model.propose(frames)
+        for (i, s), pi, gi in zip(chunk, p, g):
+            if s == 0:
+                pos[i, :f], logits[i, :f] = pi, gi
+            else:
+                pos[i, s + f - 1], logits[i, s + f - 1] = pi[-1], gi[-1]
+    return pos, logits
+
+
+def write_proposals(path: str | Path, proposals: Proposals) -> Path:
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(path.name + ".tmp")
+    with h5py.File(tmp, "w") as f:
+        f.create_dataset("positions", data=proposals.positions.numpy().astype(np.float32), chunks=(1, *proposals.positions.shape[1:]))
+        f.create_dataset("logits", data=proposals.logits.numpy().astype(np.float32), chunks=(1, *proposals.logits.shape[1:]))
+        f.create_dataset("rollout_ids", data=proposals.rollout_ids.numpy().astype(np.int64))
+        for k, v in {**proposals.attrs, "format_version": PROPOSALS_VERSION}.items():
+            f.attrs[k] = v
+    os.replace(tmp, path)
+    return path
+
+
+def read_proposals(path: str | Path, rollout_ids: torch.Tensor | None = None) -> Proposals:
+    """Load and check a proposals file; ``rollout_ids`` [R] (the dataset's) must match when given."""
+    path = Path(path)
+    if not path.is_file():
+        raise DatasetError(f"{path}: no proposals file (make it with task=export_proposals)")
+    try:
+        with h5py.File(path, "r") as f:
+            missing = [k for k in ("positions", "logits", "rollout_ids") if k not in f]
+            if missing:
+                raise DatasetError(f"{path}: key '{missing[0]}' missing; not a vgpl proposals file")
+            out = Proposals(torch.as_tensor(f["positions"][()]), torch.as_tensor(f["logits"][()]), torch.as_tensor(f["rollout_ids"][()]), dict(f.attrs))
+    except OSError as e:
+        raise DatasetError(f"{path}: not a readable HDF5 file ({e})") from e
+    if out.positions.shape[:3] != out.logits.shape[:3] or out.positions.shape[0] != out.rollout_ids.shape[0]:
+        raise DatasetError(f"{path}: 'positions' {tuple(out.positions.shape)}, 'logits' {tuple(out.logits.shape)} and 'rollout_ids' disagree")
+    if rollout_ids is not None and not torch.equal(out.rollout_ids, rollout_ids):
+        raise DatasetError(f"{path}: 'rollout_ids' do not match the dataset's; re-export the proposals with task=export_proposals")
+    return out

@@ -1,0 +1,23 @@
+"""The paper's metrics (REFERENCE.md): parameter error as % of range, position MSE x 1e4,
+probability of the correct rigidness label."""
+
+from __future__ import annotations
+
+import torch
+
+
+def param_error_pct(pred: torch.Tensor, truth: torch.Tensor, low: torch.Tensor, high: torch.Tensor) -> torch.Tensor:
+    """|P_hat - P| / (high - low) x 100 per scene and parameter [B, P] (pred, truth [B, P] physical)."""
+    return (pred - truth).abs() / (high - low) * 100.0
+
+
+def position_mse_x1e4(pred: torch.Tensor, truth: torch.Tensor, mask: torch.Tensor | None = None) -> float:
+    """Mean squared position error x 1e4 over particles (``mask`` [N] selects), frames, coords."""
+    if mask is not None:
+        pred, truth = pred[..., mask, :], truth[..., mask, :]
+    return float(((pred - truth) ** 2).mean() * 1e4)
+
+
+def correct_rigidness_prob(rigidness: torch.Tensor, rigid: torch.Tensor) -> torch.Tensor:
+    """Probability given to the true label per scene and instance [B, M]: q where rigid, 1 - q elsewhere."""
+    return torch.where(rigid[None].bool(), rigidness, 1.0 - rigidness)

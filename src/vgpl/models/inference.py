@@ -1,0 +1,191 @@
+"""InferenceModule: from particle proposals over T observed frames, infer a refinement dX of
+every particle in every frame, the rigidness Q of every instance and the physical parameters P.
+
+It is trained through the frozen DynamicsPrior: the loss is the L1 between the trajectory the
+prior predicts from (X' + dX, G, Q, P) and the ground truth (plus a direct L1 of the refined
+positions, as the original code adds). Nothing supervises Q or P directly, unless
+``param_weight`` > 0 adds an L1 on P (not the paper: a shortcut for presets of a few CPU
+minutes, whose dynamics prior is too weak to ground P through; README).
+"""
+
+from __future__ import annotations
+
+import lightning as L
+import torch
+from torch import nn
+from torch_geometric.nn import MLP
+
+from vgpl.eval.rollout import rollout
+from vgpl.graph import edge_features, radius_graph
+from vgpl.nn.normalisation import NormalisationBuffers
+from vgpl.nn.propagation import EdgeEncoder, Propagator
+
+
+class SpatioTemporalEncoder(nn.Module):
+    """Message passing on each frame's radius graph, then a bidirectional GRU over time per particle.
+
+    forward(nodes [B, T, N, F], positions [B, T, N, 3], grouping [B, N, M]) -> [B, T, N, 2 W]
+    """
+
+    def __init__(self, node_dim: int, width: int, propagation_steps: int, gru_layers: int, radius: float, max_neighbors: int) -> None:
+        super().__init__()
+        self.radius, self.steps, self.max_neighbors = radius, propagation_steps, max_neighbors
+        self.node_encoder = MLP([node_dim, width, width, width], norm=None, plain_last=False)
+        self.edge_encoder = EdgeEncoder(node_dim, 5, width)
+        self.edge_term = nn.Linear(width, width)
+        self.propagator = Propagator(width)
+        self.gru = nn.GRU(width, width, num_layers=gru_layers, batch_first=True, bidirectional=True)
+
+    def forward(self, nodes: torch.Tensor, positions: torch.Tensor, grouping: torch.Tensor, pos_scale: torch.Tensor) -> torch.Tensor:
+        b, t, n, _ = nodes.shape
+        flat_nodes = nodes.reshape(b * t * n, -1)
+        flat_pos = positions.reshape(b * t * n, 3)
+        graph = torch.arange(b * t, device=nodes.device).repeat_interleave(n)
+        with torch.no_grad():
+            # proposals can be far denser than real particles (an untrained prior collapses them):
+            # the nearest max_neighbors keep the cost bounded
+            edge_index = radius_graph(flat_pos.detach(), self.radius, graph, max_neighbors=self.max_neighbors)
+        group = grouping[:, None].expand(b, t, n, -1).reshape(b * t * n, -1)
+        scale = torch.cat([pos_scale, pos_scale.norm()[None], torch.ones(1, device=nodes.device)])
+        edge_attr = edge_features(flat_pos, edge_index, group) / scale
+        code = self.node_encoder(flat_nodes)
+        term = self.edge_term(self.edge_encoder(flat_nodes, edge_attr, edge_index))
+        effect = torch.zeros_like(code)
+        for _ in range(self.steps):
+            effect = self.propagator(effect, code, term, edge_index)
+        seq = effect.reshape(b, t, n, -1).permute(0, 2, 1, 3).reshape(b * n, t, -1)
+        out, _ = self.gru(seq)
+        return out.reshape(b, n, t, -1).permute(0, 2, 1, 3)
+
+
+class InferenceModule(NormalisationBuffers, L.LightningModule):
+    def __init__(
+        self,
+        param_low: list[float],
+        param_high: list[float],
+        n_particles: int,
+        n_instances: int,
+        radius: float,
+        width: int = 150,
+        propagation_steps: int = 2,
+        gru_layers: int = 2,
+        separate_param_net: bool = True,
+        horizon: int = 5,
+        refine_weight: float = 1.0,
+        lr: float = 1e-4,
+        rigidness: bool = True,
+        max_neighbors: int = 24,
+        one_step_windows: int | None = 0,
+        param_weight: float = 0.0,
+    ) -> None:
+        super().__init__()
+        self.save_hyperparameters()
+        self.register_normalisation(param_low, param_high)
+        node_dim = 3 + 3 + n_instances + 1
+        make = lambda: SpatioTemporalEncoder(node_dim, width, propagation_steps, gru_layers, radius, max_neighbors)  # noqa: E731
+        self.encoder = make()
+        self.param_encoder = make() if separate_param_net else None
+        self.refine_head = MLP([2 * width, width, 3], norm=None)
+        self.rigid_head = MLP([2 * width, width, 1], norm=None)
+        self.param_head = MLP([2 * width, width, len(param_low)], norm=None)
+        self.dynamics = None  # the frozen DynamicsPrior (attach_dynamics); not part of this checkpoint
+
+    def attach_dynamics(self, dynamics) -> None:
+        """Use ``dynamics`` (frozen, eval mode) in the training loss; it is not saved with this module."""
+        dynamics.eval().requires_grad_(False)
+        object.__setattr__(self, "dynamics", dynamics)  # plain attribute: not a registered submodule
+
+    # ---- inference ------------------------------------------------------------------------------
+    def forward(self, proposals: torch.Tensor, grouping: torch.Tensor, kinematic: torch.Tensor) -> dict:
+        """proposals [B, T, N, 3] (metres), grouping [B, N, M] (probabilities), kinematic [N] ->
+        refine [B, T, N, 3] (metres), rigidness [B, M] in (0, 1), params [B, P] in (-1, 1)."""
+        b, t, n, _ = proposals.shape
+        disp = torch.cat([torch.zeros_like(proposals[:, :1]), proposals[:, 1:] - proposals[:, :-1]], 1)
+        disp = torch.where(torch.arange(t, device=proposals.device)[None, :, None, None] > 0, (disp - self.disp_mean) / self.disp_std, disp)
+        nodes = torch.cat([
+            (proposals - self.pos_mean) / self.pos_std, disp, grouping[:, None].expand(b, t, n, -1),
+            kinematic[None, None, :, None].expand(b, t, n, 1).float(),
+        ], -1)
+        h = self.encoder(nodes, proposals, grouping, self.pos_std)  # [B, T, N, 2W]
+        refine = self.refine_head(h) * self.disp_std
+        weights = grouping / grouping.sum(1, keepdim=True).clamp_min(1e-8)  # [B, N, M]
+        per_instance = torch.einsum("bnm,bnw->bmw", weights, h.mean(1))
+        rigidness = torch.sigmoid(self.rigid_head(per_instance).squeeze(-1))
+        hp = h if self.param_encoder is None else self.param_encoder(nodes, proposals, grouping, self.pos_std)
+        params = torch.tanh(self.param_head(hp.mean((1, 2))))
+        return {"refine": refine, "rigidness": rigidness, "params": params}
+
+    def infer(self, proposals, logits, kinematic, refinement: bool = True, rigidness: bool | None = None,
+              params: bool = True, generator: torch.Generator | None = None) -> dict:
+        """Everything the dynamics prior needs, in its units, with the ablations applied.
+
+        Args: proposals [B, T, N, 3]; logits [B, T, N, M] (the visual prior's grouping logits).
+        Returns positions [B, T, N, 3] (refined, or X' when ``refinement`` is off), grouping
+        [B, N, M], rigidness [B, M] (zeros when off), params [B, P] physical (uniform draws when off),
+        params_normalised [B, P].
+        """
+        rigidness = self.hparams.rigidness if rigidness is None else rigidness
+        grouping = torch.softmax(logits, -1).mean(1)
+        out = self(proposals, grouping, kinematic)
+        positions = proposals + out["refine"] if refinement else proposals
+        q = out["rigidness"] if rigidness else torch.zeros_like(out["rigidness"])
+        p = out["params"]
+        if not params:
+            p = torch.rand(p.shape, generator=generator, device="cpu").to(p.device) * 2.0 - 1.0
+        return {"positions": positions, "grouping": grouping, "rigidness": q, "params": self.to_physical(p), "params_normalised": p}
+
+    # ---- training through the frozen dynamics prior ---------------------------------------------
+    def _losses(self, batch) -> dict:
+        if self.dynamics is None:
+            raise RuntimeError("InferenceModule: attach_dynamics(model) before training; the loss runs through the frozen DynamicsPrior")
+        dyn = self.dynamics
+        kinematic = batch["kinematic"][0]
+        proposals, truth, planes = batch["proposals"], batch["positions"], batch["planes"]
+        b, t = proposals.shape[:2]
+        h, k = dyn.hparams.history, self.hparams.horizon
+        out = self.infer(proposals, batch["logits"], kinematic)
+        x = torch.where(kinematic[None, None, :, None], truth[:, :t], out["positions"])  # kinematic parts are known
+        g, q, p = out["grouping"], out["rigidness"], out["params"]
+        scale = dyn.disp_std
+        movable = ~kinematic
+        losses = {}
+        # one step from refined histories inside the observed window (the last few, or all T - h)
+        k1 = self.hparams.one_step_windows
+        starts = list(range(t - h)) if k1 is None else list(range(t - h))[-k1:] if k1 > 0 else []
+        if starts:
+            hist = torch.cat([x[:, s : s + h] for s in starts])
+            pl = torch.cat([planes[:, s : s + h] for s in starts])
+            target = torch.cat([truth[:, s + h] for s in starts])
+            rep = lambda z: z.repeat(len(starts), *([1] * (z.dim() - 1)))  # noqa: E731
+            pred = dyn.step(hist, rep(g), rep(q), rep(p), pl, kinematic)
+            losses["one_step"] = ((pred - target) / scale).abs()[:, movable].mean()
+        # the trajectory: from the first h refined frames through the rest of the window and k
+        # frames past it; a wrong parameter's error grows with every step, which makes P visible
+        n_roll = t - h + k
+        if n_roll > 0:
+            future = rollout(dyn, torch.cat([x[:, :h], truth[:, h : t + k]], 1), g, q, p, planes, kinematic, n_roll)
+            losses["rollout"] = ((future - truth[:, h : t + k]) / scale).abs()[:, :, movable].mean()
+        losses["refine"] = ((out["positions"] - truth[:, :t]) / scale).abs()[:, :, movable].mean()
+        p_error = (out["params_normalised"] - self.normalise_params(batch["params"])).abs()
+        losses["loss"] = losses.get("one_step", 0.0) + losses.get("rollout", 0.0) + self.hparams.refine_weight * losses["refine"]
+        if self.hparams.param_weight > 0:  # NOT the paper: a supervised shortcut for CPU-minute presets (README)
+            losses["loss"] = losses["loss"] + self.hparams.param_weight * p_error.mean()
+        losses["param_mae_pct"] = (p_error * 50.0).mean()
+        return losses
+
+    def training_step(self, batch, batch_idx):
+        losses = self._losses(batch)
+        self.log_dict({f"train/{k}": v for k, v in losses.items()}, batch_size=batch["proposals"].shape[0], prog_bar=False)
+        self.log("train/loss_bar", losses["loss"], prog_bar=True, logger=False, batch_size=batch["proposals"].shape[0])
+        return losses["loss"]
+
+    def validation_step(self, batch, batch_idx):
+        losses = self._losses(batch)
+        self.log_dict({f"val/{k}": v for k, v in losses.items()}, batch_size=batch["proposals"].shape[0], prog_bar=False)
+
+    def on_fit_start(self) -> None:
+        if self.dynamics is not None:
+            self.dynamics.to(self.device)
+
+    def configure_optimizers(self):
+        return torch.optim.Adam(self.parameters(), lr=self.hparams.lr)

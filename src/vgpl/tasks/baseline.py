@@ -1,0 +1,116 @@
+"""DensePhysNet baseline: task=train_baseline trains it to predict optical flow and fits the
+linear (ridge) decoder from its representation to the parameter; task=evaluate model=densephysnet
+reports its parameter error on the same test videos as VGPL."""
+
+from __future__ import annotations
+
+import json
+import logging
+from pathlib import Path
+
+import hydra
+import lightning as L
+import torch
+from omegaconf import DictConfig
+from torch.utils.data import DataLoader
+
+from vgpl.checkpoint import load_stage
+from vgpl.data.flow_windows import FlowWindows
+from vgpl.data.trajectories import load_split
+from vgpl.eval.linear_probe import Ridge
+from vgpl.eval.metrics import param_error_pct
+from vgpl.models.densephysnet import DensePhysNet
+from vgpl.tasks.stage import fit, setup_run, stage_checkpoint
+
+log = logging.getLogger(__name__)
+
+
+class FlowDataModule(L.LightningDataModule):
+    def __init__(self, train: FlowWindows, test: FlowWindows, batch_size: int) -> None:
+        super().__init__()
+        self.train, self.test, self.batch_size = train, test, batch_size
+
+    def train_dataloader(self):
+        return DataLoader(self.train, batch_size=self.batch_size, shuffle=True, drop_last=len(self.train) > self.batch_size)
+
+    def val_dataloader(self):
+        return DataLoader(self.test, batch_size=self.batch_size)
+
+
+@torch.no_grad()
+def features(model: DensePhysNet, windows: FlowWindows, batch_size: int = 8) -> tuple[torch.Tensor, torch.Tensor]:
+    """Pooled representations [R, F] and true parameters [R, P] of every window."""
+    model.eval()
+    feats, params = [], []
+    for batch in DataLoader(windows, batch_size=batch_size):
+        feats.append(model.representation(batch["frames"], batch["actions"]))
+        params.append(batch["params"])
+    return torch.cat(feats), torch.cat(params)
+
+
+@torch.no_grad()
+def flow_quality(model: DensePhysNet, windows: FlowWindows, batch_size: int = 8) -> dict:
+    """End-point error of the predicted flow and of predicting zero flow on the pixels that move,
+    and the correlation of predicted with true flow there."""
+    model.eval()
+    epe, zero, preds, truths = [], [], [], []
+    for batch in DataLoader(windows, batch_size=batch_size):
+        flow, _ = model(batch["frames"], batch["actions"])
+        moving = batch["flow"].norm(dim=-1) > 0
+        epe.append((flow - batch["flow"]).norm(dim=-1)[moving].mean())
+        zero.append(batch["flow"].norm(dim=-1)[moving].mean())
+        preds.append(flow[moving].flatten()), truths.append(batch["flow"][moving].flatten())
+    p, t = torch.cat(preds), torch.cat(truths)
+    corr = float(torch.corrcoef(torch.stack([p, t]))[0, 1]) if p.numel() > 1 else 0.0
+    return {"flow_epe": float(torch.stack(epe).mean()), "flow_epe_zero": float(torch.stack(zero).mean()), "flow_correlation": corr}
+
+
+def _windows(cfg: DictConfig, scene, split: str, stride: int | None, max_rollouts):
+    spec = cfg.model.densephysnet
+    rollouts = load_split(cfg.data.root, scene.name, split, images=True, max_rollouts=max_rollouts)
+    return FlowWindows(rollouts, scene.camera, spec.observed, cfg.env.get("start_frame", 0), stride, spec.flow)
+
+
+def train_baseline(cfg: DictConfig) -> dict:
+    setup_run(cfg)
+    scene = hydra.utils.instantiate(cfg.env.scene)
+    spec = cfg.model.densephysnet
+    train = _windows(cfg, scene, "train", spec.window_stride, spec.get("max_rollouts"))
+    test = _windows(cfg, scene, "test", None, cfg.eval.get("max_rollouts"))
+    model = hydra.utils.instantiate(spec.net, action_dim=scene.action_dim)
+    _, last = fit(cfg, "densephysnet", spec, model, FlowDataModule(train, test, spec.batch_size))
+    # the linear decoder: one representation per training rollout, at the evaluation protocol's window
+    probe = _windows(cfg, scene, "train", None, spec.get("max_rollouts"))
+    x, y = features(model, probe)
+    ridge = Ridge.fit(x, y, spec.ridge_alpha)
+    torch.save(ridge.state_dict(), last.parent / "ridge.pt")
+    result = {"env": scene.name, "checkpoint": str(last), **flow_quality(model, test)}
+    out = Path(cfg.paths.output_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "metrics.json").write_text(json.dumps(result, indent=1))
+    log.info("DensePhysNet: %s", result)
+    return result
+
+
+def evaluate_baseline(cfg: DictConfig) -> dict:
+    setup_run(cfg)
+    scene = hydra.utils.instantiate(cfg.env.scene)
+    ckpt = stage_checkpoint(cfg, "densephysnet")
+    model, _ = load_stage(ckpt, DensePhysNet, env=scene.name, n_particles=scene.n_particles)
+    ridge_file = ckpt.parent / "ridge.pt"
+    if not ridge_file.is_file():
+        raise FileNotFoundError(f"{ridge_file}: missing; task=train_baseline writes the linear decoder beside the checkpoint")
+    ridge = Ridge(**torch.load(ridge_file))
+    test = _windows(cfg, scene, "test", None, cfg.eval.get("max_rollouts"))
+    x, y = features(model, test)
+    pred = ridge.predict(x).clamp(torch.as_tensor(scene.param_low, dtype=torch.float32), torch.as_tensor(scene.param_high, dtype=torch.float32))
+    err = param_error_pct(pred, y, test.r.param_low, test.r.param_high).mean(1)
+    record = {"env": scene.name, "method": "densephysnet", "ablation": "full", "n_test": len(test), "checkpoints": {"densephysnet": str(ckpt)},
+              "param_mae_pct": float(err.mean()), "param_mae_pct_std": float(err.std()), **flow_quality(model, test)}
+    out = Path(cfg.paths.output_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "metrics.json").write_text(json.dumps(record, indent=1))
+    from vgpl.tasks.evaluate import write_tables
+
+    write_tables([record], out)
+    return record

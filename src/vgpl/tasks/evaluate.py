@@ -1,0 +1,123 @@
+"""task=evaluate: the paper's evaluation of one method / ablation on one environment's test
+videos, from checkpoint paths alone. Writes metrics.json, table1/table2 (Markdown + CSV), PNG
+figures and TensorBoard events into the run folder; task=report gathers many of them."""
+
+from __future__ import annotations
+
+import json
+import logging
+from pathlib import Path
+
+import hydra
+from omegaconf import DictConfig
+from torch.utils.tensorboard import SummaryWriter
+
+from vgpl.checkpoint import load_stage
+from vgpl.data.trajectories import load_split
+from vgpl.eval import figures
+from vgpl.eval.grounding import evaluate_grounding
+from vgpl.eval.preview import write_gif
+from vgpl.eval.tables import csv_text, markdown, report_markdown, table1_rows, table2_rows
+from vgpl.eval.tensorboard_media import add_gif, rollout_video
+from vgpl.models.dynamics_prior import DynamicsPrior
+from vgpl.models.inference import InferenceModule
+from vgpl.models.visual_prior import VisualPrior
+from vgpl.tasks.stage import setup_run, stage_checkpoint, stage_dir
+from vgpl.tasks.train_inference import inference_stage
+
+log = logging.getLogger(__name__)
+
+
+def write_tables(records: list[dict], out: Path) -> str:
+    """report.md, table1.csv and table2.csv in ``out``; returns the Markdown."""
+    out.mkdir(parents=True, exist_ok=True)
+    text = report_markdown(records)
+    (out / "report.md").write_text(text)
+    (out / "table1.csv").write_text(csv_text(*table1_rows(records)))
+    (out / "table2.csv").write_text(csv_text(*table2_rows(records)))
+    return text
+
+
+def inference_checkpoint(cfg: DictConfig) -> Path:
+    stage = inference_stage(cfg.ablation)
+    given = (cfg.get("ckpt") or {}).get("inference")
+    return Path(given) if given and stage == "inference" else stage_dir(cfg, stage) / "last.ckpt"
+
+
+def evaluate(cfg: DictConfig) -> dict:
+    setup_run(cfg)
+    if cfg.model.name == "densephysnet":
+        from vgpl.tasks.baseline import evaluate_baseline
+
+        return evaluate_baseline(cfg)
+    if cfg.model.name != "vgpl":
+        raise ValueError(f"model.name='{cfg.model.name}': expected vgpl or densephysnet")
+    scene = hydra.utils.instantiate(cfg.env.scene)
+    env, n = scene.name, scene.n_particles
+    paths = {"dynamics": stage_checkpoint(cfg, "dynamics"), "visual": stage_checkpoint(cfg, "visual"), "inference": inference_checkpoint(cfg)}
+    dynamics, _ = load_stage(paths["dynamics"], DynamicsPrior, env=env, n_particles=n)
+    visual, _ = load_stage(paths["visual"], VisualPrior, env=env, n_particles=n)
+    inference, _ = load_stage(paths["inference"], InferenceModule, env=env, n_particles=n)
+    test = load_split(cfg.data.root, env, "test", images=True, max_rollouts=cfg.eval.get("max_rollouts"))
+    if test.positions.shape[2] != n:
+        raise ValueError(f"{cfg.data.root}/{env}/test: {test.positions.shape[2]} particles, the checkpoints expect {n}")
+    observed = cfg.model.inference.observed if cfg.eval.get("observed") is None else cfg.eval.observed
+    result = evaluate_grounding(dynamics, visual, inference, scene, test, cfg.ablation, observed, cfg.eval.n_steps,
+                                cfg.eval.get("max_observed", 20), cfg.env.get("start_frame", 0), cfg.seed)
+    record = {"env": env, "method": "vgpl", "ablation": cfg.ablation.name, "n_test": int(test.positions.shape[0]),
+              "observed": observed, "checkpoints": {k: str(v) for k, v in paths.items()}, **result.metrics,
+              "rigidness_curve": result.rigidness_curve}
+    out = Path(cfg.paths.output_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "metrics.json").write_text(json.dumps(record, indent=1))
+    text = write_tables([record], out)
+    _figures_and_tensorboard(cfg, scene, test, result, observed, out)
+    log.info("evaluation of %s (%s) on %s:\n%s", record["method"], record["ablation"], env, text)
+    return record
+
+
+def _figures_and_tensorboard(cfg, scene, test, result, observed: int, out: Path) -> None:
+    writer = SummaryWriter(str(out / "tensorboard"))
+    tag = f"{scene.name}/{cfg.ablation.name}"
+    for key, value in result.metrics.items():
+        writer.add_scalar(f"eval/{key}", value, 0)
+    steps = [k for k in (1, cfg.eval.n_steps) if k <= result.truth.shape[1]]
+    figs = {
+        "particles": figures.particles_figure(scene.camera, scene.instance, result.truth[0], result.prediction[0], steps, f"{tag}: test video 0"),
+        "params": figures.params_figure(test.params[:, 0], result.params[:, 0], float(scene.param_low[0]), float(scene.param_high[0]), scene.param_names[0], tag),
+    }
+    if result.rigidness_curve:
+        figs["rigidness"] = figures.rigidness_figure(result.rigidness_curve, observed, tag)
+    for name, fig in figs.items():
+        writer.add_figure(f"eval/{name}", fig, 0, close=False)
+        figures.save(fig, out / f"{name}.png")
+    video = rollout_video(scene.camera, scene.instance, result.truth[0], result.prediction[0])
+    add_gif(writer, "eval/rollout_truth_vs_prediction", video, 0)
+    write_gif(video, out / "rollout_truth_vs_prediction.gif", fps=15)
+    writer.close()
+
+
+def load_records(folder: str | Path) -> list[dict]:
+    """Every evaluation record (metrics.json with a method) under ``folder``, e.g. a multirun folder."""
+    records = []
+    for path in sorted(Path(folder).rglob("metrics.json")):
+        record = json.loads(path.read_text())
+        if "method" in record and "env" in record:
+            records.append(record)
+    return records
+
+
+def report(cfg: DictConfig) -> dict:
+    """task=report task.dir=<multirun folder>: one Table 1 and Table 2 from all its evaluations."""
+    folder = cfg.task.get("dir")
+    if folder in (None, "???") or not Path(folder).is_dir():
+        raise ValueError(f"task.dir={folder!r}: expected the folder of a task=evaluate (multi)run")
+    records = load_records(folder)
+    if not records:
+        raise ValueError(f"task.dir={folder}: no evaluation metrics.json under it (run task=evaluate first)")
+    out = Path(cfg.paths.output_dir)
+    text = write_tables(records, out)
+    print(text)
+    return {"n_records": len(records), "report": str(out / "report.md"), "records": records}
+
+

@@ -1,0 +1,81 @@
+"""task=train_visual: train the VisualPrior on rendered video; task=export_proposals: run it over
+every video with the paper's sliding window and write the proposals of each split to HDF5."""
+
+from __future__ import annotations
+
+import json
+import logging
+from pathlib import Path
+
+import hydra
+import torch
+from omegaconf import DictConfig
+
+from vgpl.checkpoint import load_stage
+from vgpl.data.grounding import proposals_path
+from vgpl.data.proposals import Proposals, propose_videos, write_proposals
+from vgpl.data.shard import read_shard
+from vgpl.data.video import VideoDataModule
+from vgpl.models.visual_prior import VisualPrior
+from vgpl.tasks.stage import fit, setup_run, stage_checkpoint
+
+log = logging.getLogger(__name__)
+
+
+def train_visual(cfg: DictConfig) -> dict:
+    """Train the VisualPrior into ``<ckpt_dir>/visual/``; returns the test position MSE x 1e4 (metres^2)."""
+    setup_run(cfg)
+    scene = hydra.utils.instantiate(cfg.env.scene)
+    spec = cfg.model.visual
+    dm = VideoDataModule(cfg.data.root, scene.name, spec.frames, spec.batch_size, cfg.env.get("start_frame", 0), spec.frame_stride,
+                         spec.max_rollouts, cfg.eval.get("max_rollouts"))
+    dm.setup()
+    model: VisualPrior = hydra.utils.instantiate(spec.net, _convert_="all", n_particles=scene.n_particles, n_instances=scene.n_instances, frames=spec.frames)
+    model.set_stats(dm.stats)
+    trainer, last = fit(cfg, "visual", spec, model, dm)
+    model.eval()
+    errors, correct, count = [], 0, 0
+    with torch.no_grad():
+        for batch in dm.val_dataloader():
+            pos, logits = model.propose(batch["frames"])
+            errors.append(((pos - batch["positions"]) ** 2).mean((1, 2, 3)))
+            correct += int((logits.argmax(-1) == batch["instance"][:, None]).sum())
+            count += logits.shape[0] * logits.shape[1] * logits.shape[2]
+    result = {"env": scene.name, "checkpoint": str(last), "visual_mse_x1e4": float(torch.cat(errors).mean() * 1e4), "grouping_accuracy": correct / max(count, 1)}
+    out = Path(cfg.paths.output_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "metrics.json").write_text(json.dumps(result, indent=1))
+    log.info("visual prior on the test split: %s", result)
+    return result
+
+
+def export_split(model: VisualPrior, root: str, env: str, split: str, checkpoint: str, max_rollouts: int | None = None, progress: bool = True) -> Path:
+    """Proposals for the first ``max_rollouts`` rollouts of a split, shard by shard (bounded memory)."""
+    files = sorted((Path(root) / env / split).glob("shard_*.h5"))
+    if not files:
+        raise FileNotFoundError(f"{Path(root) / env / split}: no shard_*.h5 files (generate them with task=generate env={env})")
+    positions, logits, ids = [], [], []
+    for f in files:
+        shard = read_shard(f, images=True)
+        if shard.images is None:
+            raise ValueError(f"{f}: key 'images' missing: generated with data.render=false; the visual prior needs video")
+        take = len(shard.rollout_ids) if max_rollouts is None else min(len(shard.rollout_ids), max_rollouts - sum(len(i) for i in ids))
+        p, g = propose_videos(model, torch.as_tensor(shard.images[:take]), progress=progress)
+        positions.append(p), logits.append(g), ids.append(torch.as_tensor(shard.rollout_ids[:take]))
+        if max_rollouts is not None and sum(len(i) for i in ids) >= max_rollouts:
+            break
+    prop = Proposals(torch.cat(positions), torch.cat(logits), torch.cat(ids), {"env": env, "split": split, "visual_checkpoint": checkpoint})
+    return write_proposals(proposals_path(root, env, split), prop)
+
+
+def export_proposals(cfg: DictConfig) -> dict:
+    """Proposals of the train split (the inference module's training data) and of the test split."""
+    setup_run(cfg)
+    scene = hydra.utils.instantiate(cfg.env.scene)
+    ckpt = stage_checkpoint(cfg, "visual")
+    model, _ = load_stage(ckpt, VisualPrior, env=scene.name, n_particles=scene.n_particles)
+    paths = {}
+    for split, limit in (("train", cfg.model.inference.get("max_rollouts")), ("test", cfg.eval.get("max_rollouts"))):
+        paths[split] = str(export_split(model, cfg.data.root, scene.name, split, str(ckpt), limit, cfg.data.progress))
+        log.info("proposals of the %s split: %s", split, paths[split])
+    return {"env": scene.name, **paths}

@@ -1,0 +1,77 @@
+from __future__ import annotations
+
+import pytest
+import torch
+from omegaconf import OmegaConf
+
+from tests.conftest import REPO
+from vgpl.graph import own_radius_graph
+from vgpl.models.dynamics_prior import DynamicsPrior
+from vgpl.models.inference import InferenceModule
+from vgpl.models.visual_prior import VisualPrior
+from vgpl.data.proposals import propose_videos
+from vgpl.tasks.pipeline import ABLATIONS, ablation_config
+
+
+def test_capped_radius_graph_keeps_the_nearest_neighbours():
+    torch.manual_seed(0)
+    pos = torch.rand(40, 3) * 0.1  # dense: everyone within r of everyone
+    full = own_radius_graph(pos, 1.0)
+    capped = own_radius_graph(pos, 1.0, max_neighbors=5)
+    assert full.shape[1] == 40 * 39 and capped.shape[1] == 40 * 5
+    dist = torch.cdist(pos, pos) + torch.eye(40) * 9
+    for i in range(40):
+        sources = capped[0, capped[1] == i]
+        assert set(sources.tolist()) == set(dist[i].topk(5, largest=False).indices.tolist())
+
+
+def _modules(n=24, m=2):
+    dyn = DynamicsPrior([-15.0], [-5.0], m, radius=0.3, width=16)
+    inf = InferenceModule([-15.0], [-5.0], n, m, radius=0.3, width=16, horizon=2)
+    inf.set_stats(dyn)
+    inf.attach_dynamics(dyn)
+    return dyn, inf
+
+
+def test_training_loss_reaches_rigidness_and_parameters_only_through_the_frozen_prior():
+    torch.manual_seed(0)
+    dyn, inf = _modules()
+    b, t, n = 2, 8, 24
+    batch = {
+        "proposals": torch.rand(b, t, n, 3), "logits": torch.randn(b, t, n, 2), "positions": torch.rand(b, t + 2, n, 3),
+        "planes": torch.zeros(b, t + 2, 0, 4), "params": torch.tensor([[-9.0], [-12.0]]), "kinematic": torch.zeros(b, n, dtype=torch.bool),
+    }
+    inf._losses(batch)["loss"].backward()
+    assert inf.rigid_head.lins[-1].weight.grad.abs().sum() > 0
+    assert inf.param_head.lins[-1].weight.grad.abs().sum() > 0
+    assert all(p.grad is None for p in dyn.parameters())  # frozen
+    assert not any(k.startswith("dynamics") for k in inf.state_dict())  # not part of the checkpoint
+
+
+def test_ablation_switches():
+    torch.manual_seed(0)
+    _, inf = _modules()
+    prop, logits = torch.rand(3, 6, 24, 3), torch.randn(3, 6, 24, 2)
+    kin = torch.zeros(24, dtype=torch.bool)
+    full = inf.infer(prop, logits, kin)
+    assert not torch.equal(full["positions"], prop) and (full["rigidness"] > 0).all()
+    assert torch.equal(inf.infer(prop, logits, kin, refinement=False)["positions"], prop)
+    assert (inf.infer(prop, logits, kin, rigidness=False)["rigidness"] == 0).all()
+    drawn = inf.infer(prop, logits, kin, params=False, generator=torch.Generator().manual_seed(1))["params"]
+    assert ((drawn >= -15) & (drawn <= -5)).all() and not torch.allclose(drawn, full["params"])
+
+
+@pytest.mark.parametrize("name", ABLATIONS)
+def test_ablation_flags_agree_with_the_config_group(name):
+    assert OmegaConf.load(REPO / f"conf/ablation/{name}.yaml") == ablation_config(name)
+
+
+def test_sliding_window_keeps_the_last_frame_of_each_window():
+    torch.manual_seed(0)
+    model = VisualPrior(n_particles=5, n_instances=2, channels=[4, 4, 4, 4], hidden=8).eval()
+    images = torch.randint(0, 255, (2, 7, 120, 160, 3), dtype=torch.uint8)
+    pos, logits = propose_videos(model, images, batch_size=3)
+    with torch.no_grad():
+        first, _ = model.propose(images[:1, 0:4])
+        third, g = model.propose(images[1:, 2:6])
+    assert torch.allclose(pos[0, :4], first[0]) and torch.allclose(pos[1, 5], third[0, -1]) and torch.allclose(logits[1, 5], g[0, -1])

@@ -1,0 +1,111 @@
+"""The whole pipeline on a tiny dataset made by the engine: it trains, beats a constant
+parameter guess, and evaluation from the saved checkpoints reproduces its numbers."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+import torch
+from hydra import compose, initialize_config_dir
+
+from tests.conftest import REPO
+from vgpl.checkpoint import CheckpointError
+from vgpl.data.trajectories import load_split
+from vgpl.tasks.evaluate import evaluate, report
+from vgpl.tasks.pipeline import pipeline
+
+TINY = [
+    "env=rigid_fall", "env.scene.n_steps=40", "data.n_rollouts=48", "data.train_fraction=0.5",
+    "data.shard_size=24", "data.batch_size=24", "data.progress=false", "trainer.precision=32-true",
+    "trainer.enable_progress_bar=false", "trainer.limit_val_batches=2",
+    "model.dynamics.net.width=48", "model.dynamics.batch_size=16", "model.dynamics.trainer.max_steps=250", "model.dynamics.trainer.val_check_interval=125",
+    "model.visual.net.channels=[8,16,16,32]", "model.visual.net.hidden=256", "model.visual.trainer.max_steps=300", "model.visual.trainer.val_check_interval=150",
+    "model.inference.net.width=32", "model.inference.window_stride=1", "model.inference.net.max_neighbors=12", "model.inference.trainer.max_steps=300", "model.inference.trainer.val_check_interval=150",
+    "model.densephysnet.net.channels=8", "model.densephysnet.net.latent=8", "model.densephysnet.trainer.max_steps=100",
+    "model.densephysnet.trainer.val_check_interval=50", "model.densephysnet.window_stride=5",
+    "eval.n_steps=10", "eval.max_observed=12",
+]
+
+
+def config(tmp: Path, *overrides):
+    with initialize_config_dir(str(REPO / "conf"), version_base="1.3"):
+        return compose("config", overrides=[*TINY, f"paths.root_dir={tmp}", f"paths.output_dir={tmp}/run", *overrides])
+
+
+pytestmark = pytest.mark.slow  # about 4 minutes on 2 cores: the parameter estimate needs ~300 inference steps
+
+
+@pytest.fixture(scope="module")
+def tiny(tmp_path_factory):
+    tmp = tmp_path_factory.mktemp("pipeline")
+    return tmp, pipeline(config(tmp, "task=pipeline", "task.baseline=true"))
+
+
+def test_inferred_parameters_beat_the_range_midpoint(tiny):
+    tmp, result = tiny
+    full = next(r for r in result["records"] if r["method"] == "vgpl" and r["ablation"] == "full")
+    test = load_split(tmp / "data/quick", "rigid_fall", "test")
+    midpoint = ((test.params - (test.param_low + test.param_high) / 2).abs() / (test.param_high - test.param_low) * 100).mean()
+    assert full["param_mae_pct"] < float(midpoint)
+    assert full["refine_mse_x1e4_after"] < full["refine_mse_x1e4_before"]
+    assert 0 < full["future_mse_x1e4@1"] < full["future_mse_x1e4@10"]
+
+
+def test_every_ablation_and_the_baseline_are_in_the_report(tiny):
+    tmp, result = tiny
+    text = (tmp / "run/report.md").read_text()
+    for row in ("| VGPL |", "| VGPL w/o rigidness |", "| VGPL w/o refinement |", "| VGPL w/o parameter estimation |", "| DensePhysNet |"):
+        assert row in text
+    no_params = next(r for r in result["records"] if r["ablation"] == "no_params")
+    full = next(r for r in result["records"] if r["method"] == "vgpl" and r["ablation"] == "full")
+    assert no_params["param_mae_pct"] != full["param_mae_pct"]
+    assert no_params["refine_mse_x1e4_after"] == full["refine_mse_x1e4_after"]  # same module, only P drawn
+    for name in ("rigidness.png", "particles.png", "params.png", "rollout_truth_vs_prediction.gif", "table1.csv", "table2.csv"):
+        assert (tmp / "run/evaluate/full" / name).is_file()
+    assert list((tmp / "run/evaluate/full/tensorboard").glob("events.out.tfevents.*"))
+
+
+def test_rigidness_curve_has_one_value_per_observation_length(tiny):
+    _, result = tiny
+    full = next(r for r in result["records"] if r["method"] == "vgpl" and r["ablation"] == "full")
+    assert list(full["rigidness_curve"]) == ["cube"] and len(full["rigidness_curve"]["cube"]) == 12
+    assert all(0.0 <= p <= 1.0 for p in full["rigidness_curve"]["cube"])
+
+
+def test_baseline_predicts_flow_better_than_zero_and_reports_a_parameter_error(tiny):
+    tmp, result = tiny
+    dpn = next(r for r in result["records"] if r["method"] == "densephysnet")
+    assert dpn["flow_epe"] < dpn["flow_epe_zero"] and dpn["flow_correlation"] > 0.3
+    assert 0 <= dpn["param_mae_pct"] <= 100
+
+
+def test_evaluation_from_checkpoints_alone_reproduces_the_numbers(tiny):
+    tmp, result = tiny
+    for record in result["records"][:2]:
+        again = evaluate(config(tmp, "task=evaluate", f"paths.output_dir={tmp}/again", f"ablation={record['ablation']}", f"model={record['method']}"))
+        for key, value in record.items():
+            if key.startswith(("param_mae", "future_mse", "refine_mse", "rigidness_prob")):
+                assert again[key] == value, key
+
+
+def test_report_gathers_a_folder_of_evaluations(tiny):
+    tmp, result = tiny
+    out = report(config(tmp, "task=report", f"task.dir={tmp}/run/evaluate", f"paths.output_dir={tmp}/report"))
+    assert out["n_records"] == len(result["records"])
+    assert "| VGPL |" in (tmp / "report/report.md").read_text()
+
+
+def test_checkpoint_of_another_env_or_particle_count_is_refused(tiny, tmp_path):
+    tmp, _ = tiny
+    dynamics = tmp / "checkpoints/quick/rigid_fall/dynamics/last.ckpt"
+    visual = tmp / "checkpoints/quick/rigid_fall/visual/last.ckpt"
+    with pytest.raises(CheckpointError, match=r"dynamics/last.ckpt: trained on env 'rigid_fall', used for env 'mass_rope'"):
+        evaluate(config(tmp, "task=evaluate", "env=mass_rope", f"ckpt.dynamics={dynamics}", f"paths.output_dir={tmp_path}"))
+    with pytest.raises(CheckpointError, match="a vgpl.models.visual_prior.VisualPrior checkpoint, expected vgpl.models.dynamics_prior.DynamicsPrior"):
+        evaluate(config(tmp, "task=evaluate", f"ckpt.dynamics={visual}", f"paths.output_dir={tmp_path}"))
+    with pytest.raises(CheckpointError, match="trained for 192 particles, the data has 128"):
+        evaluate(config(tmp, "task=evaluate", "+env.scene.n_cubes=2", f"paths.output_dir={tmp_path}"))
+    with pytest.raises(CheckpointError, match="nope.ckpt: no such checkpoint"):
+        evaluate(config(tmp, "task=evaluate", f"ckpt.inference={tmp_path}/nope.ckpt", f"paths.output_dir={tmp_path}"))
