@@ -132,7 +132,7 @@ def test_hydra_multirun_splits_generation_across_jobs(tmp_path):
 
 
 def test_demo_job_writes_data_and_previews_for_all_envs(tmp_path):
-    proc = run_py("task.n_steps=6", "task.n_rollouts=2", f"data.root={tmp_path}/data", f"hydra.run.dir={tmp_path}/run", cwd=tmp_path)
+    proc = run_py("task=demo", "task.n_steps=6", "task.n_rollouts=2", f"data.root={tmp_path}/data", f"hydra.run.dir={tmp_path}/run", cwd=tmp_path)
     assert proc.returncode == 0, proc.stderr[-2000:]
     for env in ("rigid_fall", "fluid_cube", "mass_rope"):
         gif = tmp_path / "run/preview" / f"{env}.gif"
@@ -142,6 +142,12 @@ def test_demo_job_writes_data_and_previews_for_all_envs(tmp_path):
         assert Image.open(gif).n_frames == 6
         validate(next((tmp_path / "data" / env / "train").glob("*.h5")))
     assert Image.open(tmp_path / "run/preview/envs.png").size == (3 * 320, 240)
+
+
+def test_the_main_job_is_the_quick_pipeline(tmp_path):
+    proc = run_py("--cfg", "job", cwd=tmp_path)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert "name: pipeline" in proc.stdout and "tag: quick" in proc.stdout and "name: rigid_fall" in proc.stdout
 
 
 def test_bad_option_gives_one_clear_error(tmp_path):

@@ -18,7 +18,7 @@ def config(tmp: Path, *overrides):
         return compose(
             "config",
             overrides=[
-                "env=rigid_fall", "env.scene.n_steps=30", f"data.root={tmp}/data", "data.n_rollouts=6",
+                "~experiment", "env=rigid_fall", "env.scene.n_steps=30", f"data.root={tmp}/data", "data.n_rollouts=6",
                 "data.shard_size=6", "data.render=false", "data.progress=false", f"paths.output_dir={tmp}/run", f"paths.ckpt_dir={tmp}/ckpt",
                 "trainer.max_epochs=1", "trainer.limit_train_batches=6", "trainer.limit_val_batches=2",
                 "trainer.enable_progress_bar=false", "trainer.log_every_n_steps=2", "eval.n_steps=10", "model.dynamics.net.width=32", *overrides,
