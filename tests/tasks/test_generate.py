@@ -153,3 +153,14 @@ def test_the_main_job_is_the_quick_pipeline(tmp_path):
 def test_bad_option_gives_one_clear_error(tmp_path):
     proc = run_py("task=generate", "env=water", cwd=tmp_path)
     assert proc.returncode != 0 and "water" in proc.stderr and "rigid_fall" in proc.stderr
+
+
+def test_local_launcher_runs_a_two_job_sweep_in_parallel_processes(tmp_path):
+    proc = run_py("-m", "hydra/launcher=local", "task=generate", "env=rigid_fall,mass_rope", "env.scene.n_steps=4", "data.n_rollouts=2",
+                  "data.shard_size=2", "data.render=false", "data.progress=false", "threads=1", f"data.root={tmp_path}/data",
+                  f"hydra.sweep.dir={tmp_path}/sweep", cwd=tmp_path)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert "Joblib.Parallel(n_jobs=2" in proc.stdout + proc.stderr
+    assert sorted(p.name for p in (tmp_path / "sweep").iterdir() if p.is_dir()) == ["0", "1"]
+    for env in ("rigid_fall", "mass_rope"):
+        validate(next((tmp_path / "data" / env / "train").glob("*.h5")))
