@@ -88,3 +88,16 @@ def test_checkpoint_on_a_dataset_with_another_particle_count_is_named(trained, t
     generate(config(tmp_path, "task=generate", "+env.scene.n_cubes=2"))  # 128 particles
     with pytest.raises(DatasetError, match="128 particles.*expects 192"):
         evaluate_dynamics(config(tmp_path, "task=evaluate_dynamics", f"ckpt_path={result['checkpoint']}"))
+
+
+def test_ckpt_path_last_resumes_an_interrupted_run_from_the_stage_folder(tmp_path, caplog):
+    generate(config(tmp_path, "task=generate"))
+    last = tmp_path / "ckpt/dynamics/last.ckpt"
+    train_dynamics(config(tmp_path, "task=train_dynamics", "trainer.max_epochs=5", "+trainer.max_steps=4"))  # "interrupted" at step 4
+    first = torch.load(last, weights_only=False)
+    with caplog.at_level("INFO"):
+        train_dynamics(config(tmp_path, "task=train_dynamics", "trainer.max_epochs=5", "+trainer.max_steps=9", "ckpt_path=last"))
+    second = torch.load(last, weights_only=False)
+    assert f"Restoring states from the checkpoint path at {last}" in caplog.text
+    assert first["global_step"] == 4 and second["global_step"] == 9
+    assert float(second["optimizer_states"][0]["state"][0]["step"]) == 9  # Adam continued, not restarted
