@@ -101,3 +101,28 @@ def test_ckpt_path_last_resumes_an_interrupted_run_from_the_stage_folder(tmp_pat
     assert f"Restoring states from the checkpoint path at {last}" in caplog.text
     assert first["global_step"] == 4 and second["global_step"] == 9
     assert float(second["optimizer_states"][0]["state"][0]["step"]) == 9  # Adam continued, not restarted
+
+
+def test_ddp_on_two_cpu_processes_matches_single_process_training(tmp_path):
+    """trainer=ddp (gloo, 2 processes x batch 2) against one process x batch 4: the same samples
+    per step, so the validation loss after 6 steps agrees closely."""
+    import subprocess
+    import sys
+
+    def run(*args):
+        cmd = [sys.executable, str(REPO / "run.py"), "~experiment", "env=rigid_fall", "env.scene.n_steps=30", f"data.root={tmp_path}/data", *args]
+        proc = subprocess.run(cmd, cwd=tmp_path, capture_output=True, text=True, timeout=300)
+        assert proc.returncode == 0, proc.stderr[-2000:]
+        return proc.stdout + proc.stderr
+
+    run("task=generate", "data.n_rollouts=6", "data.shard_size=6", "data.render=false", "data.progress=false")
+    common = ["task=train_dynamics", "trainer.accelerator=cpu", "model.dynamics.net.width=32", "trainer.max_epochs=1", "trainer.limit_train_batches=6",
+              "trainer.limit_val_batches=4", "trainer.enable_progress_bar=false", "eval.n_steps=10", "threads=1",
+              "model.dynamics.net.noise=0", "model.dynamics.net.rigid_dropout=0"]
+    log = run(*common, "trainer=ddp", "model.dynamics.batch_size=2", f"paths.ckpt_dir={tmp_path}/ddp", f"hydra.run.dir={tmp_path}/r2")
+    assert "MEMBER: 2/2" in log
+    run(*common, "model.dynamics.batch_size=4", f"paths.ckpt_dir={tmp_path}/single", f"hydra.run.dir={tmp_path}/r1")
+    score = lambda ckpt: float(next(iter(torch.load(ckpt, weights_only=False)["callbacks"].values()))["best_model_score"])  # noqa: E731
+    ddp, single = score(tmp_path / "ddp/dynamics/last.ckpt"), score(tmp_path / "single/dynamics/last.ckpt")
+    assert torch.load(tmp_path / "ddp/dynamics/last.ckpt", weights_only=False)["global_step"] == 6
+    assert abs(ddp - single) < 0.05 * single

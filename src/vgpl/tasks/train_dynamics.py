@@ -69,6 +69,8 @@ def train_dynamics(cfg: DictConfig) -> dict:
     )
     model.set_stats(dm.stats)
     trainer, last = fit(cfg, "dynamics", spec, model, dm)
+    if not trainer.is_global_zero:  # under DDP the other ranks stop here; rank 0 evaluates and writes
+        return {"env": scene.name, "checkpoint": str(last)}
     metrics, pred, truth = evaluate_rollouts(
         model, scene, cfg.data.root, cfg.eval.observed, cfg.eval.n_steps, cfg.eval.get("max_rollouts"), cfg.env.get("start_frame", 0)
     )
