@@ -78,7 +78,9 @@ def train_baseline(cfg: DictConfig) -> dict:
     train = _windows(cfg, scene, "train", spec.window_stride, spec.get("max_rollouts"))
     test = _windows(cfg, scene, "test", None, cfg.eval.get("max_rollouts"))
     model = hydra.utils.instantiate(spec.net, action_dim=scene.action_dim)
-    _, last = fit(cfg, "densephysnet", spec, model, FlowDataModule(train, test, spec.batch_size))
+    trainer, last = fit(cfg, "densephysnet", spec, model, FlowDataModule(train, test, spec.batch_size))
+    if not trainer.is_global_zero:  # under DDP rank 0 alone evaluates and writes
+        return {"env": scene.name, "checkpoint": str(last)}
     # the linear decoder: one representation per training rollout, at the evaluation protocol's window
     probe = _windows(cfg, scene, "train", None, spec.get("max_rollouts"))
     x, y = features(model, probe)

@@ -40,6 +40,8 @@ def train_inference(cfg: DictConfig) -> dict:
     model.attach_dynamics(dynamics)
     stage = inference_stage(cfg.ablation)
     trainer, last = fit(cfg, stage, spec, model, dm)
+    if not trainer.is_global_zero:  # under DDP rank 0 alone evaluates and writes
+        return {"env": scene.name, "stage": stage, "checkpoint": str(last)}
     result = {"env": scene.name, "stage": stage, "checkpoint": str(last),
               **{k: float(v) for k, v in trainer.callback_metrics.items() if k.startswith("val/")}}
     out = Path(cfg.paths.output_dir)

@@ -33,6 +33,8 @@ def train_visual(cfg: DictConfig) -> dict:
     model: VisualPrior = hydra.utils.instantiate(spec.net, _convert_="all", n_particles=scene.n_particles, n_instances=scene.n_instances, frames=spec.frames)
     model.set_stats(dm.stats)
     trainer, last = fit(cfg, "visual", spec, model, dm)
+    if not trainer.is_global_zero:  # under DDP rank 0 alone evaluates and writes
+        return {"env": scene.name, "checkpoint": str(last)}
     model.eval()
     errors, correct, count = [], 0, 0
     with torch.no_grad():
