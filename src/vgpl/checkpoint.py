@@ -9,7 +9,6 @@ from __future__ import annotations
 from pathlib import Path
 
 import hydra
-import torch
 from omegaconf import DictConfig, OmegaConf
 
 
@@ -30,9 +29,7 @@ def load_stage(path: str | Path, cls, env: str | None = None, n_particles: int |
     if not config_file.is_file():
         raise CheckpointError(f"{config_file}: missing; the config saved beside a checkpoint rebuilds its environment")
     cfg = OmegaConf.load(config_file)
-    raw = torch.load(path, map_location="cpu", weights_only=False)
-    hparams = raw.get("hyper_parameters", {})
-    saved_cls = hparams.get("_class_path", cfg.get("stage_class"))
+    saved_cls = cfg.get("stage_class")  # written by vgpl.tasks.stage.fit
     if saved_cls is not None and saved_cls != f"{cls.__module__}.{cls.__name__}":
         raise CheckpointError(f"{path}: a {saved_cls} checkpoint, expected {cls.__module__}.{cls.__name__}")
     trained_env = cfg.env.name

@@ -3,6 +3,7 @@ flow image (the DensePhysNet baseline's training target)."""
 
 from __future__ import annotations
 
+import numpy as np
 import torch
 
 
@@ -45,4 +46,4 @@ def farneback_flow(frames: torch.Tensor) -> torch.Tensor:
         raise ImportError("model.densephysnet.flow=farneback needs OpenCV: pip install opencv-python-headless (or use flow=simulator)") from e
     gray = [cv2.cvtColor(f, cv2.COLOR_RGB2GRAY) for f in frames.numpy()]
     out = [cv2.calcOpticalFlowFarneback(a, b, None, 0.5, 3, 9, 3, 5, 1.1, 0) for a, b in zip(gray[:-1], gray[1:])]
-    return torch.as_tensor(__import__("numpy").stack(out))
+    return torch.as_tensor(np.stack(out))

@@ -71,8 +71,8 @@ def write_proposals(path: str | Path, proposals: Proposals) -> Path:
     return path
 
 
-def read_proposals(path: str | Path, rollout_ids: torch.Tensor | None = None) -> Proposals:
-    """Load and check a proposals file; ``rollout_ids`` [R] (the dataset's) must match when given."""
+def read_proposals(path: str | Path) -> Proposals:
+    """Load a proposals file and check its keys and shapes (the caller matches its rollout_ids)."""
     path = Path(path)
     if not path.is_file():
         raise DatasetError(f"{path}: no proposals file (make it with task=export_proposals)")
@@ -86,6 +86,4 @@ def read_proposals(path: str | Path, rollout_ids: torch.Tensor | None = None) ->
         raise DatasetError(f"{path}: not a readable HDF5 file ({e})") from e
     if out.positions.shape[:3] != out.logits.shape[:3] or out.positions.shape[0] != out.rollout_ids.shape[0]:
         raise DatasetError(f"{path}: 'positions' {tuple(out.positions.shape)}, 'logits' {tuple(out.logits.shape)} and 'rollout_ids' disagree")
-    if rollout_ids is not None and not torch.equal(out.rollout_ids, rollout_ids):
-        raise DatasetError(f"{path}: 'rollout_ids' do not match the dataset's; re-export the proposals with task=export_proposals")
     return out

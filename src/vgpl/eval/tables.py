@@ -33,35 +33,24 @@ def _envs(records: list[dict]) -> list[str]:
     return [e for e in ENVS if e in present] + sorted(present - set(ENVS))
 
 
+def _method_rows(records: list[dict], keys: list[tuple[str, str]], cells) -> list[list[str]]:
+    """One row per (method, ablation) in ``keys`` that has any record: its name, then
+    ``cells(record or None)`` (a list of strings) for every env in turn."""
+    index, envs = _index(records), _envs(records)
+    return [[ROWS[key], *[c for e in envs for c in cells(index.get((*key, e)))]]
+            for key in keys if any((*key, e) in index for e in envs)]
+
+
 def table1_rows(records: list[dict]) -> tuple[list[str], list[list[str]]]:
     """Header and rows: parameter MAE as % of range, std in parentheses."""
-    index, envs = _index(records), _envs(records)
-    rows = []
-    for key in TABLE1_ROWS:
-        if not any((*key, e) in index for e in envs):
-            continue
-        cells = []
-        for e in envs:
-            r = index.get((*key, e))
-            cells.append("" if r is None else f"{r['param_mae_pct']:.1f}% ({r['param_mae_pct_std']:.1f})")
-        rows.append([ROWS[key], *cells])
-    return ["method", *envs], rows
+    cell = lambda r: ["" if r is None else f"{r['param_mae_pct']:.1f}% ({r['param_mae_pct_std']:.1f})"]  # noqa: E731
+    return ["method", *_envs(records)], _method_rows(records, TABLE1_ROWS, cell)
 
 
 def table2_rows(records: list[dict]) -> tuple[list[str], list[list[str]]]:
     """Header and rows: future MSE x 1e4 at T+1, 5, 10, 20, per env."""
-    index, envs = _index(records), _envs(records)
-    header = ["method"] + [f"{e} T+{k}" for e in envs for k in HORIZONS]
-    rows = []
-    for key in TABLE2_ROWS:
-        if not any((*key, e) in index for e in envs):
-            continue
-        cells = []
-        for e in envs:
-            r = index.get((*key, e), {})
-            cells += [f"{r[f'future_mse_x1e4@{k}']:.3f}" if f"future_mse_x1e4@{k}" in r else "" for k in HORIZONS]
-        rows.append([ROWS[key], *cells])
-    return header, rows
+    cells = lambda r: [f"{r[f'future_mse_x1e4@{k}']:.3f}" if r and f"future_mse_x1e4@{k}" in r else "" for k in HORIZONS]  # noqa: E731
+    return ["method"] + [f"{e} T+{k}" for e in _envs(records) for k in HORIZONS], _method_rows(records, TABLE2_ROWS, cells)
 
 
 def markdown(header: list[str], rows: list[list[str]]) -> str:

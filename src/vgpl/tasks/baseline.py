@@ -14,7 +14,7 @@ import torch
 from omegaconf import DictConfig
 from torch.utils.data import DataLoader
 
-from vgpl.checkpoint import load_stage
+from vgpl.checkpoint import load_stage, scene_of
 from vgpl.data.flow_windows import FlowWindows
 from vgpl.data.trajectories import load_split
 from vgpl.eval.linear_probe import Ridge
@@ -65,24 +65,28 @@ def flow_quality(model: DensePhysNet, windows: FlowWindows, batch_size: int = 8)
     return {"flow_epe": float(torch.stack(epe).mean()), "flow_epe_zero": float(torch.stack(zero).mean()), "flow_correlation": corr}
 
 
-def _windows(cfg: DictConfig, scene, split: str, stride: int | None, max_rollouts):
+def _windows(cfg: DictConfig, scene, rollouts, stride: int | None) -> FlowWindows:
     spec = cfg.model.densephysnet
-    rollouts = load_split(cfg.data.root, scene.name, split, images=True, max_rollouts=max_rollouts)
     return FlowWindows(rollouts, scene.camera, spec.observed, cfg.env.get("start_frame", 0), stride, spec.flow)
+
+
+def _videos(cfg: DictConfig, scene, split: str, max_rollouts):
+    return load_split(cfg.data.root, scene.name, split, images=True, max_rollouts=max_rollouts)
 
 
 def train_baseline(cfg: DictConfig) -> dict:
     setup_run(cfg)
-    scene = hydra.utils.instantiate(cfg.env.scene)
+    scene = scene_of(cfg)
     spec = cfg.model.densephysnet
-    train = _windows(cfg, scene, "train", spec.window_stride, spec.get("max_rollouts"))
-    test = _windows(cfg, scene, "test", None, cfg.eval.get("max_rollouts"))
+    train_videos = _videos(cfg, scene, "train", spec.get("max_rollouts"))
+    train = _windows(cfg, scene, train_videos, spec.window_stride)
+    test = _windows(cfg, scene, _videos(cfg, scene, "test", cfg.eval.get("max_rollouts")), None)
     model = hydra.utils.instantiate(spec.net, action_dim=scene.action_dim)
     trainer, last = fit(cfg, "densephysnet", spec, model, FlowDataModule(train, test, spec.batch_size))
     if not trainer.is_global_zero:  # under DDP rank 0 alone evaluates and writes
         return {"env": scene.name, "checkpoint": str(last)}
     # the linear decoder: one representation per training rollout, at the evaluation protocol's window
-    probe = _windows(cfg, scene, "train", None, spec.get("max_rollouts"))
+    probe = _windows(cfg, scene, train_videos, None)
     x, y = features(model, probe)
     ridge = Ridge.fit(x, y, spec.ridge_alpha)
     torch.save(ridge.state_dict(), last.parent / "ridge.pt")
@@ -96,14 +100,14 @@ def train_baseline(cfg: DictConfig) -> dict:
 
 def evaluate_baseline(cfg: DictConfig) -> dict:
     setup_run(cfg)
-    scene = hydra.utils.instantiate(cfg.env.scene)
+    scene = scene_of(cfg)
     ckpt = stage_checkpoint(cfg, "densephysnet")
     model, _ = load_stage(ckpt, DensePhysNet, env=scene.name, n_particles=scene.n_particles)
     ridge_file = ckpt.parent / "ridge.pt"
     if not ridge_file.is_file():
         raise FileNotFoundError(f"{ridge_file}: missing; task=train_baseline writes the linear decoder beside the checkpoint")
     ridge = Ridge(**torch.load(ridge_file))
-    test = _windows(cfg, scene, "test", None, cfg.eval.get("max_rollouts"))
+    test = _windows(cfg, scene, _videos(cfg, scene, "test", cfg.eval.get("max_rollouts")), None)
     x, y = features(model, test)
     pred = ridge.predict(x).clamp(torch.as_tensor(scene.param_low, dtype=torch.float32), torch.as_tensor(scene.param_high, dtype=torch.float32))
     err = param_error_pct(pred, y, test.r.param_low, test.r.param_high).mean(1)

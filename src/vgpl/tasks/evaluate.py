@@ -8,11 +8,10 @@ import json
 import logging
 from pathlib import Path
 
-import hydra
 from omegaconf import DictConfig
 from torch.utils.tensorboard import SummaryWriter
 
-from vgpl.checkpoint import load_stage
+from vgpl.checkpoint import load_stage, scene_of
 from vgpl.data.trajectories import load_split
 from vgpl.eval import figures
 from vgpl.eval.grounding import evaluate_grounding
@@ -52,7 +51,7 @@ def evaluate(cfg: DictConfig) -> dict:
         return evaluate_baseline(cfg)
     if cfg.model.name != "vgpl":
         raise ValueError(f"model.name='{cfg.model.name}': expected vgpl or densephysnet")
-    scene = hydra.utils.instantiate(cfg.env.scene)
+    scene = scene_of(cfg)
     env, n = scene.name, scene.n_particles
     paths = {"dynamics": stage_checkpoint(cfg, "dynamics"), "visual": stage_checkpoint(cfg, "visual"), "inference": inference_checkpoint(cfg)}
     dynamics, _ = load_stage(paths["dynamics"], DynamicsPrior, env=env, n_particles=n)

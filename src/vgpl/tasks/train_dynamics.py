@@ -11,7 +11,7 @@ import hydra
 import torch
 from omegaconf import DictConfig
 
-from vgpl.checkpoint import load_stage
+from vgpl.checkpoint import load_stage, scene_of
 from vgpl.data.schema import DatasetError
 from vgpl.data.trajectories import TrajectoryDataModule, ground_truth_grouping, load_split
 from vgpl.eval.rollout import future_mse, rollout
@@ -50,14 +50,10 @@ def evaluate_rollouts(
     return future_mse(pred, truth), pred, truth
 
 
-def _scene(cfg: DictConfig) -> Scene:
-    return hydra.utils.instantiate(cfg.env.scene)
-
-
 def train_dynamics(cfg: DictConfig) -> dict:
     """Train the DynamicsPrior into ``<ckpt_dir>/dynamics/`` and evaluate its test rollouts."""
     setup_run(cfg)
-    scene = _scene(cfg)
+    scene = scene_of(cfg)
     out = Path(cfg.paths.output_dir)
     out.mkdir(parents=True, exist_ok=True)
     spec = cfg.model.dynamics
@@ -94,7 +90,7 @@ def evaluate_dynamics(cfg: DictConfig) -> dict:
     if cfg.get("ckpt_path") in (None, "???"):
         raise ValueError("task=evaluate_dynamics needs ckpt_path=<path to a .ckpt>")
     model, train_cfg = load_dynamics(cfg.ckpt_path)
-    scene = _scene(train_cfg)
+    scene = scene_of(train_cfg)
     root = cfg.data.root
     test = load_split(root, scene.name, "test")
     if test.positions.shape[2] != scene.n_particles:

@@ -11,7 +11,7 @@ from pathlib import Path
 import hydra
 from omegaconf import DictConfig
 
-from vgpl.checkpoint import load_stage
+from vgpl.checkpoint import load_stage, scene_of
 from vgpl.data.grounding import GroundingDataModule
 from vgpl.models.dynamics_prior import DynamicsPrior
 from vgpl.models.inference import InferenceModule
@@ -27,7 +27,7 @@ def inference_stage(ablation: DictConfig) -> str:
 
 def train_inference(cfg: DictConfig) -> dict:
     setup_run(cfg)
-    scene = hydra.utils.instantiate(cfg.env.scene)
+    scene = scene_of(cfg)
     spec = cfg.model.inference
     dynamics, _ = load_stage(stage_checkpoint(cfg, "dynamics"), DynamicsPrior, env=scene.name)
     dm = GroundingDataModule(cfg.data.root, scene, spec.observed, spec.net.horizon, spec.batch_size, cfg.env.get("start_frame", 0), spec.window_stride, spec.get("window_span"))

@@ -11,7 +11,7 @@ import hydra
 import torch
 from omegaconf import DictConfig
 
-from vgpl.checkpoint import load_stage
+from vgpl.checkpoint import load_stage, scene_of
 from vgpl.data.grounding import proposals_path
 from vgpl.data.proposals import Proposals, propose_videos, write_proposals
 from vgpl.data.shard import read_shard
@@ -25,7 +25,7 @@ log = logging.getLogger(__name__)
 def train_visual(cfg: DictConfig) -> dict:
     """Train the VisualPrior into ``<ckpt_dir>/visual/``; returns the test position MSE x 1e4 (metres^2)."""
     setup_run(cfg)
-    scene = hydra.utils.instantiate(cfg.env.scene)
+    scene = scene_of(cfg)
     spec = cfg.model.visual
     dm = VideoDataModule(cfg.data.root, scene.name, spec.frames, spec.batch_size, cfg.env.get("start_frame", 0), spec.frame_stride,
                          spec.max_rollouts, cfg.eval.get("max_rollouts"))
@@ -57,15 +57,17 @@ def export_split(model: VisualPrior, root: str, env: str, split: str, checkpoint
     if not files:
         raise FileNotFoundError(f"{Path(root) / env / split}: no shard_*.h5 files (generate them with task=generate env={env})")
     positions, logits, ids = [], [], []
+    left = float("inf") if max_rollouts is None else max_rollouts
     for f in files:
+        if left <= 0:
+            break
         shard = read_shard(f, images=True)
         if shard.images is None:
             raise ValueError(f"{f}: key 'images' missing: generated with data.render=false; the visual prior needs video")
-        take = len(shard.rollout_ids) if max_rollouts is None else min(len(shard.rollout_ids), max_rollouts - sum(len(i) for i in ids))
+        take = int(min(len(shard.rollout_ids), left))
         p, g = propose_videos(model, torch.as_tensor(shard.images[:take]), progress=progress)
         positions.append(p), logits.append(g), ids.append(torch.as_tensor(shard.rollout_ids[:take]))
-        if max_rollouts is not None and sum(len(i) for i in ids) >= max_rollouts:
-            break
+        left -= take
     prop = Proposals(torch.cat(positions), torch.cat(logits), torch.cat(ids), {"env": env, "split": split, "visual_checkpoint": checkpoint})
     return write_proposals(proposals_path(root, env, split), prop)
 
@@ -73,7 +75,7 @@ def export_split(model: VisualPrior, root: str, env: str, split: str, checkpoint
 def export_proposals(cfg: DictConfig) -> dict:
     """Proposals of the train split (the inference module's training data) and of the test split."""
     setup_run(cfg)
-    scene = hydra.utils.instantiate(cfg.env.scene)
+    scene = scene_of(cfg)
     ckpt = stage_checkpoint(cfg, "visual")
     model, _ = load_stage(ckpt, VisualPrior, env=scene.name, n_particles=scene.n_particles)
     paths = {}
