@@ -9,6 +9,7 @@ import torch
 from tests.conftest import simulate
 from vgpl.sim.fluid import density
 from vgpl.sim.neighbors import radius_pairs
+from vgpl.sim.vector import PairIndex
 
 
 def max_relative_distance_change(positions: torch.Tensor, members: torch.Tensor) -> float:
@@ -58,7 +59,7 @@ def test_fluid_stays_near_rest_density_and_in_container():
     means, upper = [], []
     for t in range(60, 150, 10):  # after settling
         x = tr.positions[:, t]
-        rho = density(x, *radius_pairs(x, scene.h, allowed), scene.h, scene.rest_density)[:, fluid]
+        rho = density(x, PairIndex.from_pairs(*radius_pairs(x, scene.h, allowed, unique=True), x.shape[0] * x.shape[1]), scene.h, scene.rest_density)[:, fluid]
         means.append(float(rho.mean()))
         upper.append(float(rho.quantile(0.95)))
     assert abs(np.mean(means) - 1.0) < 0.10, means

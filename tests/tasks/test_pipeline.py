@@ -4,6 +4,7 @@ parameter guess, and evaluation from the saved checkpoints reproduces its number
 from __future__ import annotations
 
 import json
+import re
 from pathlib import Path
 
 import pytest
@@ -11,6 +12,7 @@ import torch
 from hydra import compose, initialize_config_dir
 
 from tests.conftest import REPO
+from tests.notebook import output_types, run_notebook, text_output
 from vgpl.checkpoint import CheckpointError
 from vgpl.data.trajectories import load_split
 from vgpl.tasks.evaluate import evaluate, report
@@ -109,3 +111,17 @@ def test_checkpoint_of_another_env_or_particle_count_is_refused(tiny, tmp_path):
         evaluate(config(tmp, "task=evaluate", "+env.scene.n_cubes=2", f"paths.output_dir={tmp_path}"))
     with pytest.raises(CheckpointError, match="nope.ckpt: no such checkpoint"):
         evaluate(config(tmp, "task=evaluate", f"ckpt.inference={tmp_path}/nope.ckpt", f"paths.output_dir={tmp_path}"))
+
+
+def test_quickstart_notebook_grounds_a_new_video(tiny):
+    """notebooks/quickstart.ipynb on the tiny checkpoints: a video the models never saw, filmed
+    with a gravity near the low end of the range, gets a gravity closer than the midpoint guess."""
+    tmp, _ = tiny
+    nb = run_notebook(REPO / "notebooks/quickstart.ipynb", tmp, CHECKPOINTS=tmp / "checkpoints/quick/rigid_fall",
+                      HIDDEN_PARAMS=[-14.0], N_STEPS=10)
+    printed = text_output(nb)
+    inferred = float(re.search(r"gravity: true -14.00, inferred (-?[0-9.]+)", printed).group(1))
+    assert -15.0 <= inferred <= -5.0
+    assert abs(inferred + 14.0) < abs(-10.0 + 14.0)
+    assert "future_mse_x1e4@10" in printed
+    assert {"image/gif", "image/png"} <= output_types(nb)  # the observed and predicted videos, the particles figure

@@ -103,6 +103,39 @@ def test_ckpt_path_last_resumes_an_interrupted_run_from_the_stage_folder(tmp_pat
     assert float(second["optimizer_states"][0]["state"][0]["step"]) == 9  # Adam continued, not restarted
 
 
+def test_a_run_killed_with_sigkill_resumes_from_its_last_checkpoint(tmp_path):
+    """A real crash: run.py is SIGKILLed mid-training (no cleanup runs), then the same command
+    with ckpt_path=last continues from the last checkpoint written before the kill."""
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    generate(config(tmp_path, "task=generate"))
+    last = tmp_path / "ckpt/dynamics/last.ckpt"
+    cmd = [sys.executable, str(REPO / "run.py"), "~experiment", "task=train_dynamics", "env=rigid_fall", "env.scene.n_steps=30",
+           f"data.root={tmp_path}/data", "data.progress=false", f"paths.ckpt_dir={tmp_path}/ckpt", f"hydra.run.dir={tmp_path}/run",
+           "model.dynamics.net.width=32", "trainer.max_epochs=100000", "trainer.limit_train_batches=6", "trainer.val_check_interval=2",
+           "trainer.limit_val_batches=1", "trainer.enable_progress_bar=false", "eval.n_steps=10", "threads=1"]
+    proc = subprocess.Popen(cmd, cwd=tmp_path, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, start_new_session=True)
+    deadline = time.time() + 240
+    while not (last.is_file() and torch.load(last, weights_only=False)["global_step"] >= 4):
+        assert proc.poll() is None, proc.stderr.read().decode()[-2000:]
+        assert time.time() < deadline, "no checkpoint after 4 steps within 4 minutes"
+        time.sleep(0.5)
+    os.killpg(proc.pid, signal.SIGKILL)
+    proc.wait()
+    killed_at = torch.load(last, weights_only=False)["global_step"]  # the file is whole: Lightning writes it atomically
+    target = killed_at + 4
+    out = subprocess.run([*cmd, "ckpt_path=last", f"+trainer.max_steps={target}"], cwd=tmp_path, capture_output=True, text=True, timeout=300)
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert f"Restoring states from the checkpoint path at {last}" in out.stdout + out.stderr
+    resumed = torch.load(last, weights_only=False)
+    assert resumed["global_step"] == target
+    assert float(resumed["optimizer_states"][0]["state"][0]["step"]) == target  # Adam continued from the killed run
+
+
 def test_ddp_on_two_cpu_processes_matches_single_process_training(tmp_path):
     """trainer=ddp (gloo, 2 processes x batch 2) against one process x batch 4: the same samples
     per step, so the validation loss after 6 steps agrees closely."""

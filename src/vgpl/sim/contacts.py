@@ -17,6 +17,8 @@ from dataclasses import dataclass
 
 import torch
 
+from vgpl.sim.vector import squared_norm, squared_norm_weighted
+
 
 @dataclass
 class Bodies:
@@ -32,16 +34,17 @@ class Bodies:
 
 def body_frames(p: torch.Tensor, bodies: Bodies) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """Centroids [B, M, 3], inverse masses [M] and world inverse inertia [B, M, 3, 3] of the rigid instances."""
-    b, n, _ = p.shape
-    m = bodies.n_instances
-    mass = torch.where(bodies.rigid_particle, 1.0 / bodies.inv_mass.clamp_min(1e-12), torch.zeros_like(bodies.inv_mass))
-    total = torch.zeros(m, dtype=p.dtype, device=p.device).index_add_(0, bodies.instance, mass)
-    centroid = torch.zeros(b, m, 3, dtype=p.dtype, device=p.device).index_add_(1, bodies.instance, p * mass[:, None])
+    b, m = p.shape[0], bodies.n_instances
+    rigid = bodies.rigid_particle.nonzero().squeeze(1)  # the sums run over rigid particles only
+    q, inst = p.index_select(1, rigid), bodies.instance.index_select(0, rigid)
+    mass = 1.0 / bodies.inv_mass.index_select(0, rigid).clamp_min(1e-12)
+    total = torch.zeros(m, dtype=p.dtype, device=p.device).index_add_(0, inst, mass)
+    centroid = torch.zeros(b, m, 3, dtype=p.dtype, device=p.device).index_add_(1, inst, q * mass[:, None])
     centroid = centroid / total.clamp_min(1e-12)[:, None]
-    r = p - centroid[:, bodies.instance]
+    r = q - centroid[:, inst]
     eye = torch.eye(3, dtype=p.dtype, device=p.device)
-    per = mass[:, None, None] * ((r * r).sum(-1)[..., None, None] * eye - r.unsqueeze(-1) * r.unsqueeze(-2))
-    inertia = torch.zeros(b, m, 3, 3, dtype=p.dtype, device=p.device).index_add_(1, bodies.instance, per)
+    per = mass[:, None, None] * (squared_norm(r)[..., None, None] * eye - r.unsqueeze(-1) * r.unsqueeze(-2))
+    inertia = torch.zeros(b, m, 3, 3, dtype=p.dtype, device=p.device).index_add_(1, inst, per)
     rigid_body = total > 0
     inertia = torch.where(rigid_body[None, :, None, None], inertia, eye)  # placeholders for non-rigid instances
     return centroid, torch.where(rigid_body, 1.0 / total.clamp_min(1e-12), torch.zeros_like(total)), torch.linalg.inv(inertia)
@@ -69,44 +72,48 @@ class _Frame:
         scene = torch.arange(self.b, device=p.device).repeat_interleave(self.n)
         self.body_of = scene * bodies.n_instances + flat_inst  # [B*N] flat body index
         self.rigid = bodies.rigid_particle.repeat(self.b)  # [B*N]
-        self.r = (p - self.centroid[:, bodies.instance]).reshape(-1, 3)  # [B*N, 3]
+        self.r = (p - self.centroid.index_select(1, bodies.instance)).reshape(-1, 3)  # [B*N, 3]
+        rigid_idx = bodies.rigid_particle.nonzero().squeeze(1)
+        self.rigid_rows = (torch.arange(self.b, device=p.device)[:, None] * self.n + rigid_idx).reshape(-1)  # [B*R] rows of rigid particles
         self.inv_mass = bodies.inv_mass.repeat(self.b)
         self.flat_inv_inertia = self.inv_inertia.reshape(-1, 3, 3)
         self.flat_body_inv_mass = self.body_inv_mass.repeat(self.b)
 
     def effective_inv_mass(self, idx: torch.Tensor, normal: torch.Tensor) -> torch.Tensor:
         """[E] generalised inverse mass of particles ``idx`` along unit ``normal`` [E, 3]."""
-        rxn = torch.cross(self.r[idx], normal, dim=-1)
-        body = self.body_of[idx]
-        angular = (rxn * (self.flat_inv_inertia[body] @ rxn.unsqueeze(-1)).squeeze(-1)).sum(-1)
-        rigid_w = self.flat_body_inv_mass[body] + angular
-        return torch.where(self.rigid[idx], rigid_w, self.inv_mass[idx])
+        rxn = torch.cross(self.r.index_select(0, idx), normal, dim=-1)
+        body = self.body_of.index_select(0, idx)
+        angular = squared_norm_weighted(rxn, self.flat_inv_inertia.index_select(0, body))
+        rigid_w = self.flat_body_inv_mass.index_select(0, body) + angular
+        return torch.where(self.rigid.index_select(0, idx), rigid_w, self.inv_mass.index_select(0, idx))
 
     def apply(self, idx: torch.Tensor, impulse: torch.Tensor, average_free: bool = True) -> torch.Tensor:
         """Apply impulses [E, 3] at particles ``idx``. Jacobi: averaged over each body's contacts,
         and over each free particle's contacts when ``average_free`` (False for half-spaces, whose
         corrections at a corner are independent and must add up)."""
         b, n, m = self.b, self.n, self.bodies.n_instances
-        active = (impulse.abs().sum(-1) > 0).to(impulse.dtype)
-        rigid = self.rigid[idx]
+        active = (squared_norm(impulse) > 0).to(impulse.dtype)
+        rigid = self.rigid.index_select(0, idx)
         # free particles
         free = (~rigid).to(impulse.dtype)[:, None]
-        dp = torch.zeros(b * n, 3, dtype=impulse.dtype, device=impulse.device).index_add_(0, idx, free * impulse * self.inv_mass[idx, None])
+        dp = torch.zeros(b * n, 3, dtype=impulse.dtype, device=impulse.device).index_add_(0, idx, free * impulse * self.inv_mass.index_select(0, idx)[:, None])
         cnt = torch.zeros(b * n, dtype=impulse.dtype, device=impulse.device).index_add_(0, idx, active * free[:, 0])
         flat = self.p.reshape(-1, 3) + (dp / cnt.clamp_min(1.0)[:, None] if average_free else dp)
         # rigid bodies
         if bool(self.bodies.rigid_particle.any()):
             rw = rigid.to(impulse.dtype)[:, None]
-            body = self.body_of[idx]
+            body = self.body_of.index_select(0, idx)
             lin = torch.zeros(b * m, 3, dtype=impulse.dtype, device=impulse.device).index_add_(0, body, rw * impulse)
-            ang = torch.zeros(b * m, 3, dtype=impulse.dtype, device=impulse.device).index_add_(0, body, rw * torch.cross(self.r[idx], impulse, dim=-1))
+            ang = torch.zeros(b * m, 3, dtype=impulse.dtype, device=impulse.device).index_add_(0, body, rw * torch.cross(self.r.index_select(0, idx), impulse, dim=-1))
             bcnt = torch.zeros(b * m, dtype=impulse.dtype, device=impulse.device).index_add_(0, body, active * rw[:, 0]).clamp_min(1.0)
             dx = lin * self.flat_body_inv_mass[:, None] / bcnt[:, None]
             dtheta = (self.flat_inv_inertia @ ang.unsqueeze(-1)).squeeze(-1) / bcnt[:, None]
             rot = rodrigues(dtheta)  # [B*M, 3, 3]
-            pb = self.body_of
-            moved = self.centroid.reshape(-1, 3)[pb] + (rot[pb] @ self.r.unsqueeze(-1)).squeeze(-1) + dx[pb]
-            flat = torch.where(self.rigid[:, None], moved, flat)
+            rows = self.rigid_rows
+            pb = self.body_of.index_select(0, rows)
+            r = self.r.index_select(0, rows)
+            moved = self.centroid.reshape(-1, 3).index_select(0, pb) + (rot.index_select(0, pb) @ r.unsqueeze(-1)).squeeze(-1) + dx.index_select(0, pb)
+            flat = flat.index_copy(0, rows, moved)
         return flat.reshape(b, n, 3)
 
 
@@ -129,8 +136,8 @@ def project_particle_contacts(
     """
     frame = _Frame(p, bodies)
     flat, flat_prev = p.reshape(-1, 3), x_prev.reshape(-1, 3)
-    d = flat[i] - flat[j]
-    length = d.norm(dim=-1)
+    d = flat.index_select(0, i) - flat.index_select(0, j)
+    length = squared_norm(d).sqrt()
     normal = d / length.clamp_min(1e-9)[:, None]
     penetration = (distance - length).clamp_min(0.0)
     w = (frame.effective_inv_mass(i, normal) + frame.effective_inv_mass(j, normal)).clamp_min(1e-12)

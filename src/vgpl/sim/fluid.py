@@ -11,6 +11,8 @@ import math
 
 import torch
 
+from vgpl.sim.vector import PairIndex, squared_norm
+
 
 def poly6(r2: torch.Tensor, h: float) -> torch.Tensor:
     """Poly6 kernel W(r) from squared distances, zero beyond h."""
@@ -30,26 +32,26 @@ def lattice_rest_density(spacing: float, h: float) -> float:
     return float(poly6((grid**2).sum(-1), h).sum())
 
 
-def density(p: torch.Tensor, i: torch.Tensor, j: torch.Tensor, h: float, rest_density: float) -> torch.Tensor:
-    """Normalised density rho / rho_0 of every particle, counting pairs (i, j) and itself.
+def density(p: torch.Tensor, pairs: PairIndex, h: float, rest_density: float) -> torch.Tensor:
+    """Normalised density rho / rho_0 of every particle, counting its pairs and itself.
 
-    Args: p [B, N, 3]; i, j [E] flat pair indices; h kernel radius.
+    Args: p [B, N, 3]; pairs: unordered pairs of the batch (``radius_pairs(unique=True)``);
+    h kernel radius.
     Returns: [B, N] (meaningful for fluid particles).
     """
     b, n, _ = p.shape
-    flat = p.reshape(b * n, 3)
-    return _density(((flat[i] - flat[j]) ** 2).sum(-1), i, b * n, h, rest_density).reshape(b, n)
+    return _density(poly6(squared_norm(pairs.difference(p.reshape(b * n, 3))), h), pairs, h, rest_density).reshape(b, n)
 
 
-def _density(r2: torch.Tensor, i: torch.Tensor, size: int, h: float, rest_density: float) -> torch.Tensor:
-    rho = torch.full((size,), float(poly6(torch.zeros(()), h)), dtype=r2.dtype, device=r2.device)
-    return rho.index_add_(0, i, poly6(r2, h)) / rest_density
+def _density(kernel: torch.Tensor, pairs: PairIndex, h: float, rest_density: float) -> torch.Tensor:
+    """[B * N] normalised densities from the [E] kernel values of the pairs."""
+    rho = torch.full((pairs.size,), float(poly6(torch.zeros(()), h)), dtype=kernel.dtype, device=kernel.device)
+    return pairs.accumulate(kernel, rho) / rest_density
 
 
 def project_density(
     p: torch.Tensor,
-    i: torch.Tensor,
-    j: torch.Tensor,
+    pairs: PairIndex,
     fluid: torch.Tensor,
     inv_mass: torch.Tensor,
     h: float,
@@ -61,35 +63,35 @@ def project_density(
     Only fluid particles carry a constraint, but solid particles count towards their density and
     take the pressure reaction (two-way coupling, as in FleX): a light solid floats.
 
-    Args: p [B, N, 3]; i, j [E] flat pair indices (pairs with at least one fluid particle, both
-    directions); fluid [N] bool; inv_mass [N]; relaxation: CFM epsilon added to the denominator.
+    Args: p [B, N, 3]; pairs: unordered pairs with at least one fluid particle; fluid [N] bool;
+    inv_mass [N]; relaxation: CFM epsilon added to the denominator.
     Returns: [B, N, 3] corrected positions (solids move particle-wise: shape-match them after).
     """
     b, n, _ = p.shape
     flat = p.reshape(b * n, 3)
     w = inv_mass.repeat(b)
-    d = flat[i] - flat[j]
-    r2 = (d * d).sum(-1)
-    constraint = (_density(r2, i, b * n, h, rest_density) - 1.0).clamp_min(0.0) * fluid.repeat(b)
-    grad = (spiky_grad_scale(r2.sqrt(), h) / rest_density).unsqueeze(-1) * d  # grad_{p_i} of W_ij / rho0
-    grad_self = torch.zeros_like(flat).index_add_(0, i, grad)
-    denom = (w * (grad_self**2).sum(-1)).index_add_(0, i, w[j] * (grad**2).sum(-1)) + relaxation
-    lam = -constraint / denom
-    delta = torch.zeros_like(flat).index_add_(0, i, (lam[i] + lam[j]).unsqueeze(-1) * grad)
+    d = pairs.difference(flat)
+    r2 = squared_norm(d)
+    constraint = (_density(poly6(r2, h), pairs, h, rest_density) - 1.0).clamp_min(0.0) * fluid.repeat(b)
+    # grad_{p_i} W_ij / rho0; the gradient with respect to p_j is its negative
+    grad = (spiky_grad_scale(r2.sqrt(), h) / rest_density).unsqueeze(-1) * d
+    grad2 = squared_norm(grad)
+    denom = w * squared_norm(pairs.accumulate_antisymmetric(grad))
+    denom = denom.index_add_(0, pairs.i, w.index_select(0, pairs.j) * grad2).index_add_(0, pairs.j, w.index_select(0, pairs.i) * grad2)
+    lam = -constraint / (denom + relaxation)
+    delta = pairs.accumulate_antisymmetric(pairs.gather_sum(lam).unsqueeze(-1) * grad)
     return (flat + w.unsqueeze(-1) * delta).reshape(b, n, 3)
 
 
-def xsph_viscosity(
-    v: torch.Tensor, p: torch.Tensor, i: torch.Tensor, j: torch.Tensor, h: float, rest_density: float, coefficient: torch.Tensor
-) -> torch.Tensor:
+def xsph_viscosity(v: torch.Tensor, p: torch.Tensor, pairs: PairIndex, h: float, rest_density: float, coefficient: torch.Tensor) -> torch.Tensor:
     """XSPH velocity smoothing v_i += c * sum_j (v_j - v_i) W_ij / rho_0 over fluid pairs.
 
-    Args: v, p [B, N, 3]; i, j [E] flat pair indices; coefficient [B] per-scene c in [0, 1].
+    Args: v, p [B, N, 3]; pairs: unordered fluid pairs; coefficient [B] per-scene c in [0, 1].
     Returns: [B, N, 3] smoothed velocities.
     """
     b, n, _ = v.shape
-    flat_v, flat_p = v.reshape(b * n, 3), p.reshape(b * n, 3)
-    weight = poly6(((flat_p[i] - flat_p[j]) ** 2).sum(-1), h) / rest_density
+    flat_v = v.reshape(b * n, 3)
+    weight = poly6(squared_norm(pairs.difference(p.reshape(b * n, 3))), h) / rest_density
+    delta = pairs.accumulate_antisymmetric(-weight.unsqueeze(-1) * pairs.difference(flat_v))  # i pulled towards v_j
     scene_c = coefficient.repeat_interleave(n)
-    delta = torch.zeros_like(flat_v).index_add_(0, i, weight.unsqueeze(-1) * (flat_v[j] - flat_v[i]))
     return (flat_v + scene_c.unsqueeze(-1) * delta).reshape(b, n, 3)

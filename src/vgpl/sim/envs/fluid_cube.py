@@ -14,6 +14,7 @@ import torch
 from vgpl.sim.contacts import project_particle_contacts, project_planes, push_rigid_out_of_planes
 from vgpl.sim.fluid import lattice_rest_density, project_density, xsph_viscosity
 from vgpl.sim.neighbors import radius_pairs
+from vgpl.sim.vector import PairIndex
 from vgpl.sim.scene import RolloutSample, Scene, lattice, random_walk_1d
 
 
@@ -103,16 +104,23 @@ class FluidCube(Scene):
         return self.container_planes(actions.reshape(b * t, 1, -1), 0.0).reshape(b, t, 5, 4)
 
     def neighbours(self, x, ctx):
-        # one distance pass per substep; the fluid-only and contact lists are cut from it
-        i, j, dist = radius_pairs(x, 1.1 * self.h, ctx["density_pairs"], return_distance=True)
-        n = x.shape[1]
-        fluid = ctx["fluid"]
-        both = fluid[i % n] & fluid[j % n]
+        # one distance pass per substep, each pair once; the fluid-only and contact lists are cut
+        # from it. The symmetric fluid constraints update both ends of a pair, the particle
+        # contacts take both directions.
+        i, j, dist = radius_pairs(x, 1.1 * self.h, ctx["density_pairs"], return_distance=True, unique=True)
+        fluid = ctx["fluid"].repeat(x.shape[0])
+        both = fluid.index_select(0, i) & fluid.index_select(0, j)
         contact = ~both & (dist < 1.6 * self.spacing)
-        return {"density": (i, j), "fluid": (i[both], j[both]), "contact": (i[contact], j[contact])}
+        ci, cj = i[contact], j[contact]
+        size = fluid.shape[0]
+        return {
+            "density": PairIndex.from_pairs(i, j, size),
+            "fluid": PairIndex.from_pairs(i[both], j[both], size),
+            "contact": (torch.cat([ci, cj]), torch.cat([cj, ci])),
+        }
 
     def project(self, p, x, ctx, pairs, frame):
-        p = project_density(p, *pairs["density"], ctx["fluid"], self._bodies.inv_mass, self.h, self.rest_density, self.relaxation)
+        p = project_density(p, pairs["density"], ctx["fluid"], self._bodies.inv_mass, self.h, self.rest_density, self.relaxation)
         p = self.shape_match(p)
         p = project_particle_contacts(p, x, self._bodies, *pairs["contact"], distance=self.spacing)
         return project_planes(p, x, self._bodies, self.container_planes(ctx["actions"], frame))
@@ -121,4 +129,4 @@ class FluidCube(Scene):
         return push_rigid_out_of_planes(self.shape_match(p), self._bodies, self.container_planes(ctx["actions"], frame))
 
     def post_velocity(self, v, p, ctx, pairs):
-        return xsph_viscosity(v, p, *pairs["fluid"], self.h, self.rest_density, ctx["xsph"])
+        return xsph_viscosity(v, p, pairs["fluid"], self.h, self.rest_density, ctx["xsph"])
