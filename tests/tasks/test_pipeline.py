@@ -24,7 +24,7 @@ TINY = [
     "trainer.enable_progress_bar=false", "trainer.limit_val_batches=2",
     "model.dynamics.net.width=48", "model.dynamics.batch_size=16", "model.dynamics.trainer.max_steps=250", "model.dynamics.trainer.val_check_interval=125",
     "model.visual.net.channels=[8,16,16,32]", "model.visual.net.hidden=256", "model.visual.trainer.max_steps=300", "model.visual.trainer.val_check_interval=150",
-    "model.inference.net.width=32", "model.inference.window_stride=1", "model.inference.net.max_neighbors=12", "model.inference.trainer.max_steps=300", "model.inference.trainer.val_check_interval=150",
+    "model.inference.net.width=32", "model.inference.window_stride=1", "model.inference.net.max_neighbors=12", "model.inference.trainer.max_steps=600", "model.inference.trainer.val_check_interval=300",
     "model.densephysnet.net.channels=8", "model.densephysnet.net.latent=8", "model.densephysnet.trainer.max_steps=100",
     "model.densephysnet.trainer.val_check_interval=50", "model.densephysnet.window_stride=5",
     "eval.n_steps=10", "eval.max_observed=12",
@@ -36,7 +36,7 @@ def config(tmp: Path, *overrides):
         return compose("config", overrides=[*TINY, f"paths.root_dir={tmp}", f"paths.output_dir={tmp}/run", *overrides])
 
 
-pytestmark = pytest.mark.slow  # about 4 minutes on 2 cores: the parameter estimate needs ~300 inference steps
+pytestmark = pytest.mark.slow  # about 8 minutes on 2 cores: the parameter estimate needs ~600 inference steps
 
 
 @pytest.fixture(scope="module")
@@ -125,3 +125,28 @@ def test_quickstart_notebook_grounds_a_new_video(tiny):
     assert abs(inferred + 14.0) < abs(-10.0 + 14.0)
     assert "future_mse_x1e4@10" in printed
     assert {"image/gif", "image/png"} <= output_types(nb)  # the observed and predicted videos, the particles figure
+
+
+def test_hydra_multirun_of_the_four_ablations_reports_one_table(tiny):
+    """The study as researchers run it: one `run.py -m` sweep over the ablations from the saved
+    checkpoints, then `task=report` on the sweep folder gives one table with the same numbers."""
+    import subprocess
+    import sys
+
+    tmp, result = tiny
+    sweep = tmp / "multirun"
+    common = [*TINY, f"paths.root_dir={tmp}", "threads=2"]
+    run = lambda *args: subprocess.run([sys.executable, str(REPO / "run.py"), *args], cwd=tmp, capture_output=True, text=True, timeout=600)  # noqa: E731
+    proc = run("-m", *common, "task=evaluate", "ablation=full,no_rigidness,no_refinement,no_params", f"hydra.sweep.dir={sweep}")
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert sorted(p.name for p in sweep.iterdir() if p.is_dir()) == ["0", "1", "2", "3"]
+    proc = run(*common, "task=report", f"task.dir={sweep}", f"hydra.run.dir={tmp}/sweep_report")
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    table = (tmp / "sweep_report/report.md").read_text()
+    assert table.count("| VGPL |") == 2 and table.count("| VGPL w/o rigidness |") == 2  # Table 1 and Table 2
+    assert "| VGPL w/o refinement |" in table and "| VGPL w/o parameter estimation |" in table  # Table 2
+    swept = {r["ablation"]: r for r in map(json.loads, (p.read_text() for p in sweep.glob("*/metrics.json")))}
+    for record in result["records"]:
+        if record["method"] == "vgpl":
+            assert swept[record["ablation"]]["param_mae_pct"] == record["param_mae_pct"]
+            assert swept[record["ablation"]]["future_mse_x1e4@10"] == record["future_mse_x1e4@10"]
