@@ -19,10 +19,15 @@ def run_notebook(path: str | Path, cwd: str | Path, **parameters) -> nbformat.No
     tagged = [k for k, c in enumerate(nb.cells) if "parameters" in c.metadata.get("tags", [])]
     if parameters:
         assert tagged, f"{path}: no cell tagged 'parameters' to override"
-        lines = ["from pathlib import Path"] + [f"{k} = {v!r}" for k, v in parameters.items()]
-        nb.cells.insert(tagged[0] + 1, nbformat.v4.new_code_cell("\n".join(lines).replace("PosixPath(", "Path(")))
+        lines = ["from pathlib import Path"] + [f"{k} = {_literal(v)}" for k, v in parameters.items()]
+        nb.cells.insert(tagged[0] + 1, nbformat.v4.new_code_cell("\n".join(lines)))
     NotebookClient(nb, timeout=600, kernel_name="python3", resources={"metadata": {"path": str(cwd)}}).execute()
     return nb
+
+
+def _literal(value) -> str:
+    """Python source for a parameter value (paths become Path('...'))."""
+    return f"Path({str(value)!r})" if isinstance(value, Path) else repr(value)
 
 
 def text_output(nb: nbformat.NotebookNode) -> str:
