@@ -13,7 +13,7 @@ and a :class:`Bodies` describing which particles are rigid.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import torch
 
@@ -23,19 +23,24 @@ from vgpl.sim.vector import squared_norm, squared_norm_weighted
 @dataclass
 class Bodies:
     """Static particle description. instance [N] ids, rigid_particle [N] bool, inv_mass [N],
-    radius [N], n_instances M."""
+    radius [N], n_instances M; rigid_index [R] (derived) the indices of the rigid particles, over
+    which every rigid-body sum runs (FluidCube: 48 of 348), found once instead of every pass."""
 
     instance: torch.Tensor
     rigid_particle: torch.Tensor
     inv_mass: torch.Tensor
     radius: torch.Tensor
     n_instances: int
+    rigid_index: torch.Tensor = field(init=False)
+
+    def __post_init__(self) -> None:
+        self.rigid_index = self.rigid_particle.nonzero().squeeze(1)
 
 
 def body_frames(p: torch.Tensor, bodies: Bodies) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """Centroids [B, M, 3], inverse masses [M] and world inverse inertia [B, M, 3, 3] of the rigid instances."""
     b, m = p.shape[0], bodies.n_instances
-    rigid = bodies.rigid_particle.nonzero().squeeze(1)  # the sums run over rigid particles only
+    rigid = bodies.rigid_index
     q, inst = p.index_select(1, rigid), bodies.instance.index_select(0, rigid)
     mass = 1.0 / bodies.inv_mass.index_select(0, rigid).clamp_min(1e-12)
     total = torch.zeros(m, dtype=p.dtype, device=p.device).index_add_(0, inst, mass)
@@ -73,8 +78,7 @@ class _Frame:
         self.body_of = scene * bodies.n_instances + flat_inst  # [B*N] flat body index
         self.rigid = bodies.rigid_particle.repeat(self.b)  # [B*N]
         self.r = (p - self.centroid.index_select(1, bodies.instance)).reshape(-1, 3)  # [B*N, 3]
-        rigid_idx = bodies.rigid_particle.nonzero().squeeze(1)
-        self.rigid_rows = (torch.arange(self.b, device=p.device)[:, None] * self.n + rigid_idx).reshape(-1)  # [B*R] rows of rigid particles
+        self.rigid_rows = (torch.arange(self.b, device=p.device)[:, None] * self.n + bodies.rigid_index).reshape(-1)  # [B*R] rows of rigid particles
         self.inv_mass = bodies.inv_mass.repeat(self.b)
         self.flat_inv_inertia = self.inv_inertia.reshape(-1, 3, 3)
         self.flat_body_inv_mass = self.body_inv_mass.repeat(self.b)
@@ -92,7 +96,7 @@ class _Frame:
         and over each free particle's contacts when ``average_free`` (False for half-spaces, whose
         corrections at a corner are independent and must add up)."""
         b, n, m = self.b, self.n, self.bodies.n_instances
-        active = (squared_norm(impulse) > 0).to(impulse.dtype)
+        active = (impulse.abs().sum(-1) > 0).to(impulse.dtype)
         rigid = self.rigid.index_select(0, idx)
         # free particles
         free = (~rigid).to(impulse.dtype)[:, None]

@@ -170,7 +170,7 @@ class Scene:
 
     def shape_match(self, p: torch.Tensor) -> torch.Tensor:
         """Project rigid instances onto rigid motions of their rest shape (removes numerical drift)."""
-        return shape_match(p, self._rest_offsets, self._bodies.instance, self._bodies.rigid_particle, self.n_instances)[0]
+        return shape_match(p, self._rest_offsets, self._bodies.instance, self._bodies.rigid_index, self.n_instances)[0]
 
     @torch.no_grad()
     def simulate(self, samples: list[RolloutSample], device: str | torch.device = "cpu") -> Trajectories:
