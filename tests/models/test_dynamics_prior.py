@@ -95,3 +95,31 @@ def test_rigid_head_transform():
     quarter = quaternion_to_matrix(torch.tensor([[[np.cos(np.pi / 4), 0.0, 0.0, np.sin(np.pi / 4)]]], dtype=torch.float32))
     disp = rigid_displacement(pos, g, quarter, torch.tensor([[[0.0, 0.0, 1.0]]]))
     assert torch.allclose(pos + disp, torch.tensor([[[0.0, 1.0, 1.0], [0.0, -1.0, 1.0]]]), atol=1e-6)
+
+
+@pytest.mark.parametrize("env", ["fluid_cube", "mass_rope"])
+def test_action_lookahead_shows_the_actuators_next_motion(env):
+    """With action_lookahead the prediction of frame H depends on where the container (planes) or
+    the pin (kinematic particles) will be at frame H; without it, it cannot."""
+    scene, tr, g, q, planes, kin = inputs(env, batch=1, steps=30)
+    hist, nxt, window = tr.positions[:, 10:14], tr.positions[:, 14], planes[:, 10:15]
+    moved_planes = window.clone()
+    moved_planes[:, -1, :, 3] += 0.01  # every plane moves 1 cm further into the scene in the next frame
+    moved_next = torch.where(kin[None, :, None], nxt + torch.tensor([0.01, 0.0, 0.0]), nxt)
+    for lookahead in (False, True):
+        torch.manual_seed(0)
+        model = DynamicsPrior(scene.param_low.tolist(), scene.param_high.tolist(), scene.n_instances, radius=0.08, action_lookahead=lookahead).eval()
+        with torch.no_grad():
+            base = model(hist, g, q, tr.params, window, kin, nxt)
+            shifted = model(hist, g, q, tr.params, moved_planes, kin, moved_next)
+        changed = float((shifted - base)[:, ~kin].abs().max())
+        assert (changed > 0.0) == lookahead, (lookahead, changed)  # exactly unchanged without it
+
+
+def test_action_lookahead_needs_the_predicted_frame():
+    scene, tr, g, q, planes, kin = inputs("mass_rope", batch=1, steps=10)
+    model = DynamicsPrior(scene.param_low.tolist(), scene.param_high.tolist(), scene.n_instances, radius=0.08, action_lookahead=True)
+    with pytest.raises(ValueError, match="planes need 5 frames"):
+        model(tr.positions[:, :4], g, q, tr.params, planes[:, :4], kin, tr.positions[:, 4])
+    with pytest.raises(ValueError, match="kinematic_next"):
+        model(tr.positions[:, :4], g, q, tr.params, planes[:, :5], kin)

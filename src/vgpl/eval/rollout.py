@@ -18,7 +18,7 @@ def rollout(model, positions, grouping, rigidness, params, planes, kinematic, n_
     out = []
     for k in range(n_steps):
         driven = positions[:, h + k] if positions.shape[1] > h + k else None
-        nxt = model.step(window, grouping, rigidness, params, planes[:, k : k + h], kinematic, driven)
+        nxt = model.step(window, grouping, rigidness, params, planes[:, k : k + h + 1], kinematic, driven)
         out.append(nxt)
         window = torch.cat([window[:, 1:], nxt[:, None]], 1)
     return torch.stack(out, 1)

@@ -5,6 +5,12 @@ Q [B, M], physical parameters P [B, P] (all may be estimates; gradients flow to 
 planes and which particles are kinematic. Output: the normalised displacement of every particle
 to the next frame: a per-particle (non-rigid) head and a per-instance rigid head (rotation about
 the instance centroid + translation), blended by each particle's rigidness q_i = sum_m G_im Q_m.
+
+With ``action_lookahead`` the model is action-conditioned: the boundary planes and kinematic
+particles (the actuators, whose motion is the action and comes from the data) enter with their
+displacements up to the frame being predicted, not only up to the current one. The actuators of
+FluidCube and MassRope follow a random walk whose next kick cannot be read from their history
+(README: design).
 """
 
 from __future__ import annotations
@@ -45,6 +51,7 @@ class DynamicsPrior(NormalisationBuffers, L.LightningModule):
         noise: float = 0.05,
         lr_decay: float = 1.0,
         rigid_dropout: float = 0.0,
+        action_lookahead: bool = False,
     ) -> None:
         super().__init__()
         self.save_hyperparameters()
@@ -67,11 +74,29 @@ class DynamicsPrior(NormalisationBuffers, L.LightningModule):
         return (displacement - self.disp_mean) / self.disp_std
 
     # ---- graph and features ---------------------------------------------------------------------
-    def build_inputs(self, history, grouping, rigidness, params, planes, kinematic):
+    def actuator_frames(self, history, planes, kinematic, kinematic_next):
+        """The frames whose motion the actuators show: (kinematic particle positions [B, H, N, 3],
+        planes [B, H, K, 4]): the history's, or with ``action_lookahead`` shifted one frame ahead."""
+        h = history.shape[1]
+        if not self.hparams.action_lookahead:
+            return history, planes[:, :h]
+        if planes.shape[1] < h + 1:
+            raise ValueError(f"DynamicsPrior(action_lookahead=True): planes need {h + 1} frames (history + the predicted one), got {planes.shape[1]}")
+        if kinematic.any() and kinematic_next is None:
+            raise ValueError("DynamicsPrior(action_lookahead=True): kinematic particles need kinematic_next [B, N, 3], their positions at the predicted frame")
+        if kinematic_next is None:
+            return history, planes[:, 1 : h + 1]
+        return torch.cat([history[:, 1:], kinematic_next[:, None]], 1), planes[:, 1 : h + 1]
+
+    def build_inputs(self, history, grouping, rigidness, params, planes, kinematic, kinematic_next=None):
         """Node features, edge index and edge features for particles plus boundary ghosts."""
         b, h, n, _ = history.shape
         x = history[:, -1]
-        disp = self.to_normalised(history[:, 1:] - history[:, :-1]).permute(0, 2, 1, 3).reshape(b, n, -1)
+        driven, motion = self.actuator_frames(history, planes, kinematic, kinematic_next)
+        disp = self.to_normalised(history[:, 1:] - history[:, :-1])
+        if driven is not history:
+            disp = torch.where(kinematic[None, None, :, None], self.to_normalised(driven[:, 1:] - driven[:, :-1]), disp)
+        disp = disp.permute(0, 2, 1, 3).reshape(b, n, -1)
         q = (grouping * rigidness[:, None, :]).sum(-1)  # [B, N]
         centre = torch.einsum("bnm,bmc->bnc", grouping, soft_centroids(x, grouping))
         offset = q[..., None] * (x - centre) / self.pos_std
@@ -85,10 +110,10 @@ class DynamicsPrior(NormalisationBuffers, L.LightningModule):
         edge_index = radius_graph(flat, self.hparams.radius, batch)
         group_flat = grouping.reshape(b * n, -1)
         if planes.shape[2] > 0:
-            ghost, owner, plane = plane_ghosts(flat, planes[:, -1], batch, self.hparams.radius)
+            ghost, owner, plane = plane_ghosts(flat, planes[:, h - 1], batch, self.hparams.radius)
             gb = batch[owner]
-            normal = planes[gb, :, plane, :3]  # [G, H, 3]
-            offsets = planes[gb, :, plane, 3]  # [G, H]
+            normal = motion[gb, :, plane, :3]  # [G, H, 3]
+            offsets = motion[gb, :, plane, 3]  # [G, H]
             gdisp = (offsets[:, 1:] - offsets[:, :-1])[..., None] * normal[:, 1:]  # plane motion along its normal
             gtype = torch.zeros(len(ghost), 3, device=x.device)
             gtype[:, GHOST] = 1.0
@@ -103,14 +128,16 @@ class DynamicsPrior(NormalisationBuffers, L.LightningModule):
         self.max_degree_seen = max(self.max_degree_seen, max_degree(edge_index, nodes.shape[0]))
         return nodes, edge_index, edge_features(flat, edge_index, group_flat) / torch.cat([self.pos_std, self.pos_std.norm()[None], torch.ones(1, device=x.device)])
 
-    def forward(self, history, grouping, rigidness, params, planes, kinematic) -> torch.Tensor:
+    def forward(self, history, grouping, rigidness, params, planes, kinematic, kinematic_next=None) -> torch.Tensor:
         """Normalised displacement to the next frame [B, N, 3].
 
         Args: history [B, H, N, 3]; grouping [B, N, M]; rigidness [B, M]; params [B, P] physical
-        units; planes [B, H, K, 4]; kinematic [N] bool.
+        units; planes [B, H(+1), K, 4] (frame H, the predicted one, is needed with
+        ``action_lookahead``); kinematic [N] bool; kinematic_next [B, N, 3] positions at the
+        predicted frame (only the kinematic particles' are read; needed with ``action_lookahead``).
         """
         b, _, n, _ = history.shape
-        nodes, edge_index, edge_attr = self.build_inputs(history, grouping, rigidness, params, planes, kinematic)
+        nodes, edge_index, edge_attr = self.build_inputs(history, grouping, rigidness, params, planes, kinematic, kinematic_next)
         code = self.node_encoder(nodes)
         term = self.edge_term(self.edge_encoder(nodes, edge_attr, edge_index))
         effect = torch.zeros_like(code)
@@ -128,8 +155,9 @@ class DynamicsPrior(NormalisationBuffers, L.LightningModule):
         return (1.0 - q) * nonrigid + q * rigid
 
     def step(self, history, grouping, rigidness, params, planes, kinematic, kinematic_next=None) -> torch.Tensor:
-        """Next positions [B, N, 3]; kinematic particles take ``kinematic_next`` [B, N, 3] when given."""
-        nxt = history[:, -1] + self.to_displacement(self(history, grouping, rigidness, params, planes, kinematic))
+        """Next positions [B, N, 3]; kinematic particles take ``kinematic_next`` [B, N, 3] when given.
+        planes [B, H(+1), K, 4] as in forward()."""
+        nxt = history[:, -1] + self.to_displacement(self(history, grouping, rigidness, params, planes, kinematic, kinematic_next))
         if kinematic_next is not None:
             nxt = torch.where(kinematic[None, :, None], kinematic_next, nxt)
         return nxt
@@ -147,7 +175,7 @@ class DynamicsPrior(NormalisationBuffers, L.LightningModule):
             # makes q = 0 a usable input (the no-rigidness ablation) and q's estimate a real choice
             rigidness = rigidness * (torch.rand_like(rigidness) >= self.hparams.rigid_dropout)
         target = self.to_normalised(batch["positions"][:, h] - history[:, -1])
-        pred = self(history, batch["grouping"], rigidness, batch["params"], batch["planes"][:, :h], kinematic)
+        pred = self(history, batch["grouping"], rigidness, batch["params"], batch["planes"][:, : h + 1], kinematic, batch["positions"][:, h])
         return (pred - target).abs()[:, ~kinematic].mean()
 
     def training_step(self, batch, batch_idx):

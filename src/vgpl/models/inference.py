@@ -154,10 +154,10 @@ class InferenceModule(NormalisationBuffers, L.LightningModule):
         starts = list(range(t - h)) if k1 is None else list(range(t - h))[-k1:] if k1 > 0 else []
         if starts:
             hist = torch.cat([x[:, s : s + h] for s in starts])
-            pl = torch.cat([planes[:, s : s + h] for s in starts])
+            pl = torch.cat([planes[:, s : s + h + 1] for s in starts])  # + the predicted frame (action)
             target = torch.cat([truth[:, s + h] for s in starts])
             rep = lambda z: z.repeat(len(starts), *([1] * (z.dim() - 1)))  # noqa: E731
-            pred = dyn.step(hist, rep(g), rep(q), rep(p), pl, kinematic)
+            pred = dyn.step(hist, rep(g), rep(q), rep(p), pl, kinematic, target)
             losses["one_step"] = ((pred - target) / scale).abs()[:, movable].mean()
         # the trajectory: from the first h refined frames through the rest of the window and k
         # frames past it; a wrong parameter's error grows with every step, which makes P visible
