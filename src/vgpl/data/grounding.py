@@ -22,7 +22,8 @@ def proposals_path(root: str | Path, env: str, split: str) -> Path:
 class GroundingWindows(Dataset):
     """Item: proposals [T, N, 3], logits [T, N, M], positions [T + k, N, 3] (truth), planes
     [T + k, K, 4], params [P], kinematic [N]. Windows start at ``start_frame`` and every
-    ``stride``-th frame after it, up to ``start_frame + span`` when ``span`` is given."""
+    ``stride``-th frame after it, up to ``start_frame + span`` when ``span`` is given. The proposals
+    may cover only the first frames of each video, as far as the last window's observed frames."""
 
     def __init__(self, rollouts: Rollouts, proposals: Proposals, scene: Scene, observed: int, horizon: int,
                  start_frame: int = 0, stride: int = 1, span: int | None = None) -> None:
@@ -33,6 +34,10 @@ class GroundingWindows(Dataset):
             raise ValueError(f"rollouts of {n_frames} frames are too short for {start_frame} skipped + {observed} observed + {horizon} future frames")
         if span is not None:
             last = min(last, start_frame + span)
+        if proposals.positions.shape[1] < last + observed:
+            raise DatasetError(
+                f"proposals cover the first {proposals.positions.shape[1]} frames, windows up to frame {last} + {observed} observed need "
+                f"{last + observed} (exported for a smaller model.inference.window_span?); re-export with task=export_proposals")
         self.index = [(r, s) for r in range(n_rollouts) for s in range(start_frame, last + 1, stride)]
         self.planes = scene.planes_at(rollouts.actions)
         self.kinematic = torch.as_tensor(scene.kinematic)

@@ -51,8 +51,10 @@ def train_visual(cfg: DictConfig) -> dict:
     return result
 
 
-def export_split(model: VisualPrior, root: str, env: str, split: str, checkpoint: str, max_rollouts: int | None = None, progress: bool = True) -> Path:
-    """Proposals for the first ``max_rollouts`` rollouts of a split, shard by shard (bounded memory)."""
+def export_split(model: VisualPrior, root: str, env: str, split: str, checkpoint: str, max_rollouts: int | None = None, progress: bool = True,
+                 max_frames: int | None = None) -> Path:
+    """Proposals for the first ``max_frames`` frames (None: all) of the first ``max_rollouts``
+    rollouts of a split, shard by shard (bounded memory)."""
     files = sorted((Path(root) / env / split).glob("shard_*.h5"))
     if not files:
         raise FileNotFoundError(f"{Path(root) / env / split}: no shard_*.h5 files (generate them with task=generate env={env})")
@@ -65,21 +67,31 @@ def export_split(model: VisualPrior, root: str, env: str, split: str, checkpoint
         if shard.images is None:
             raise ValueError(f"{f}: key 'images' missing: generated with data.render=false; the visual prior needs video")
         take = int(min(len(shard.rollout_ids), left))
-        p, g = propose_videos(model, torch.as_tensor(shard.images[:take]), progress=progress)
+        p, g = propose_videos(model, torch.as_tensor(shard.images[:take, :max_frames]), progress=progress)
         positions.append(p), logits.append(g), ids.append(torch.as_tensor(shard.rollout_ids[:take]))
         left -= take
     prop = Proposals(torch.cat(positions), torch.cat(logits), torch.cat(ids), {"env": env, "split": split, "visual_checkpoint": checkpoint})
     return write_proposals(proposals_path(root, env, split), prop)
 
 
+def proposal_frames(cfg: DictConfig) -> int | None:
+    """Frames of each video the inference module reads: its windows start at most
+    ``window_span`` frames after ``start_frame`` and observe ``observed`` frames (None: all frames).
+    The evaluation proposes its own test frames, so nothing later is needed."""
+    span = cfg.model.inference.get("window_span")
+    return None if span is None else int(cfg.env.get("start_frame", 0) + span + cfg.model.inference.observed)
+
+
 def export_proposals(cfg: DictConfig) -> dict:
-    """Proposals of the train split (the inference module's training data) and of the test split."""
+    """Proposals of the train split (the inference module's training data) and of the test split
+    (its validation data), for the frames the inference module reads (``proposal_frames``)."""
     setup_run(cfg)
     scene = scene_of(cfg)
     ckpt = stage_checkpoint(cfg, "visual")
     model, _ = load_stage(ckpt, VisualPrior, env=scene.name, n_particles=scene.n_particles)
+    frames = proposal_frames(cfg)
     paths = {}
     for split, limit in (("train", cfg.model.inference.get("max_rollouts")), ("test", cfg.eval.get("max_rollouts"))):
-        paths[split] = str(export_split(model, cfg.data.root, scene.name, split, str(ckpt), limit, cfg.data.progress))
-        log.info("proposals of the %s split: %s", split, paths[split])
+        paths[split] = str(export_split(model, cfg.data.root, scene.name, split, str(ckpt), limit, cfg.data.progress, frames))
+        log.info("proposals of the %s split (%s frames): %s", split, "all" if frames is None else frames, paths[split])
     return {"env": scene.name, **paths}

@@ -1,0 +1,47 @@
+from __future__ import annotations
+
+import pytest
+import torch
+
+from vgpl.data.grounding import GroundingWindows
+from vgpl.data.proposals import Proposals
+from vgpl.data.schema import DatasetError
+from vgpl.data.trajectories import Rollouts
+from vgpl.sim.envs import make_scene
+
+
+def _data(n_frames=60, proposal_frames=60):
+    scene = make_scene("rigid_fall", n_steps=n_frames)
+    r, n, m = 2, scene.n_particles, scene.n_instances
+    rollouts = Rollouts(torch.rand(r, n_frames, n, 3), torch.full((r, 1), -9.8), torch.zeros(r, n_frames, scene.action_dim),
+                        torch.as_tensor(scene.instance), torch.as_tensor(scene.rigid), torch.as_tensor(scene.param_low),
+                        torch.as_tensor(scene.param_high), scene.name, torch.arange(r))
+    proposals = Proposals(torch.rand(r, proposal_frames, n, 3), torch.randn(r, proposal_frames, n, m), torch.arange(r), {})
+    return scene, rollouts, proposals
+
+
+def test_windows_need_proposals_only_as_far_as_the_last_observed_frame():
+    """export_proposals writes start_frame + window_span + observed frames, not whole videos."""
+    scene, rollouts, proposals = _data(proposal_frames=2 + 20 + 10)
+    ds = GroundingWindows(rollouts, proposals, scene, observed=10, horizon=5, start_frame=2, span=20)
+    assert [s for _, s in ds.index[:21]] == list(range(2, 23)) and len(ds) == 2 * 21
+    item = ds[len(ds) - 1]  # the last window: frames 22..31 observed, truth to frame 36
+    assert item["proposals"].shape[0] == 10 and item["positions"].shape[0] == 15
+    assert torch.equal(item["proposals"], proposals.positions[1, 22:32])
+
+
+def test_too_short_proposals_name_the_fix():
+    scene, rollouts, proposals = _data(proposal_frames=31)
+    with pytest.raises(DatasetError, match="cover the first 31 frames.*need 32.*re-export with task=export_proposals"):
+        GroundingWindows(rollouts, proposals, scene, observed=10, horizon=5, start_frame=2, span=20)
+
+
+def test_export_covers_the_frames_the_inference_windows_read():
+    from omegaconf import OmegaConf
+
+    from vgpl.tasks.train_visual import proposal_frames
+
+    cfg = OmegaConf.create({"env": {"start_frame": 2}, "model": {"inference": {"observed": 10, "window_span": 20}}})
+    assert proposal_frames(cfg) == 32  # exactly what the windows above need
+    cfg.model.inference.window_span = None
+    assert proposal_frames(cfg) is None  # windows anywhere: whole videos
