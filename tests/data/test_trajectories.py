@@ -73,3 +73,29 @@ def test_an_axis_without_motion_gets_a_floored_std():
                  torch.zeros(1), torch.ones(1), "x")
     stats = NormStats.from_rollouts(r)
     assert stats.disp_std[0] == pytest.approx(stats.disp_std[1] * 1e-3) and stats.disp_std[1] > 1e-3
+
+
+@pytest.fixture(scope="module")
+def rendered(tmp_path_factory):
+    root = tmp_path_factory.mktemp("video")
+    scene = make_scene("mass_rope", n_steps=6)
+    for plan in plan_shards(6, 1.0, 2):  # 3 train shards of 2 videos
+        shard = simulate_shard(scene, plan, seed=0, batch_size=2, render=True, device="cpu")
+        shard.attrs = {**scene_attrs(scene, 0), "split": plan.split, "shard": plan.index, "config_hash": "x"}
+        write_shard(plan.path(root / "mass_rope"), shard)
+    return root
+
+
+def test_videos_are_read_only_as_far_as_asked(rendered):
+    """load_split reads the first max_rollouts videos straight into one array, in rollout order."""
+    from vgpl.data.shard import read_shard
+
+    files = sorted((rendered / "mass_rope" / "train").glob("shard_*.h5"))
+    whole = np.concatenate([read_shard(f).images for f in files])
+    assert whole.shape[:2] == (6, 6)
+    every = load_split(rendered, "mass_rope", "train", images=True)
+    assert torch.equal(every.images, torch.from_numpy(whole)) and every.rollout_ids.tolist() == list(range(6))
+    three = load_split(rendered, "mass_rope", "train", images=True, max_rollouts=3)
+    assert torch.equal(three.images, torch.from_numpy(whole[:3])) and torch.equal(three.positions, every.positions[:3])
+    first = read_shard(files[1], rollouts=1, frames=4)
+    assert first.images.shape[:2] == (1, 4) and np.array_equal(first.images, whole[2:3, :4]) and first.rollout_ids.tolist() == [2]

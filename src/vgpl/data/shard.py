@@ -54,12 +54,14 @@ def write_shard(path: str | Path, shard: Shard, compression_level: int = 4) -> P
     return path
 
 
-def read_shard(path: str | Path, images: bool = True) -> Shard:
-    """Validate and load a shard file (``images=False`` skips decoding the video)."""
+def read_shard(path: str | Path, images: bool = True, rollouts: int | None = None, frames: int | None = None) -> Shard:
+    """Validate and load a shard file: its first ``rollouts`` rollouts (None: all) and of the video
+    its first ``frames`` frames (None: all); ``images=False`` skips decoding the video. Only
+    what is asked for is read (a FluidCube shard's video is 1.7 GB)."""
     info = validate(path)
     with h5py.File(path, "r") as f:
-        arrays = {key: f[key][()] for key in DATASETS}
-        video = f["images"][()] if images and "images" in f else None
+        arrays = {key: f[key][:rollouts] if template[0] == "R" else f[key][()] for key, (_, template) in DATASETS.items()}
+        video = f["images"][:rollouts, :frames] if images and "images" in f else None
     return Shard(**arrays, images=video, attrs=info["attrs"])
 
 

@@ -10,6 +10,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
+import h5py
 import lightning as L
 import numpy as np
 import torch
@@ -40,26 +41,50 @@ class Rollouts:
 
 def load_split(root: str | Path, env: str, split: str, images: bool = False, max_rollouts: int | None = None) -> Rollouts:
     """Read the shards of ``root/env/split`` (validated), in rollout order; the first
-    ``max_rollouts`` rollouts only when given (whole shards are read, then cut)."""
+    ``max_rollouts`` rollouts only when given (only those are read). Videos are copied once,
+    shard by shard, into one array: peak memory is the split's video plus one shard's."""
     folder = Path(root) / env / split
     files = sorted(folder.glob("shard_*.h5"))
     if not files:
         raise DatasetError(f"{folder}: no shard_*.h5 files (generate them with task=generate env={env})")
-    shards = []
+    shards, videos, left = [], [], float("inf") if max_rollouts is None else max_rollouts
     for f in files:  # shard files hold consecutive rollouts in order, so the first files suffice
-        shards.append(read_shard(f, images=images))
-        if images and shards[-1].images is None:
-            raise DatasetError(f"{f}: key 'images' missing: the dataset was generated with data.render=false; the visual stages need video")
-        if max_rollouts is not None and sum(len(s.rollout_ids) for s in shards) >= max_rollouts:
+        if left <= 0:
             break
-    order = np.argsort(np.concatenate([s.rollout_ids for s in shards]))[:max_rollouts]
+        shard = read_shard(f, images=False, rollouts=None if left == float("inf") else int(left))
+        if images:
+            with h5py.File(f, "r") as h:
+                if "images" not in h:
+                    raise DatasetError(f"{f}: key 'images' missing: the dataset was generated with data.render=false; the visual stages need video")
+                videos.append((f, h["images"].shape[1:]))
+        shards.append(shard)
+        left -= len(shard.rollout_ids)
+    ids = np.concatenate([s.rollout_ids for s in shards])
+    order = np.argsort(ids, kind="stable")
     cat = lambda key: torch.as_tensor(np.concatenate([getattr(s, key) for s in shards])[order])  # noqa: E731
     first = shards[0]
     return Rollouts(
         cat("positions"), cat("params"), cat("actions"), torch.as_tensor(first.instance), torch.as_tensor(first.rigid),
         torch.as_tensor(np.asarray(first.attrs["param_low"], np.float32)), torch.as_tensor(np.asarray(first.attrs["param_high"], np.float32)),
-        str(first.attrs["env"]), cat("rollout_ids"), cat("images") if images else None,
+        str(first.attrs["env"]), cat("rollout_ids"), _read_videos(videos, [len(s.rollout_ids) for s in shards], order) if images else None,
     )
+
+
+def _read_videos(videos: list, counts: list[int], order: np.ndarray) -> torch.Tensor:
+    """The first ``counts[k]`` videos of each shard file into one uint8 array [R, T, H, W, 3]
+    (h5py reads straight into it), then put in rollout order."""
+    shape = videos[0][1]
+    out = np.empty((sum(counts), *shape), np.uint8)
+    start = 0
+    for (path, frame_shape), n in zip(videos, counts):
+        if frame_shape != shape:
+            raise DatasetError(f"{path}: 'images' of shape [R, {', '.join(map(str, frame_shape))}], the split's first shard has [R, {', '.join(map(str, shape))}]")
+        with h5py.File(path, "r") as h:
+            h["images"].read_direct(out, np.s_[:n], np.s_[start : start + n])
+        start += n
+    if not np.array_equal(order, np.arange(len(order))):
+        out = out[order]
+    return torch.from_numpy(out)
 
 
 def _std(x: torch.Tensor) -> torch.Tensor:

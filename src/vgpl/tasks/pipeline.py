@@ -8,6 +8,7 @@ so ``ckpt_path=last`` resumes a killed pipeline (finished shards are skipped, tr
 
 from __future__ import annotations
 
+import gc
 import logging
 import time
 from pathlib import Path
@@ -49,6 +50,7 @@ def pipeline(cfg: DictConfig) -> dict:
         start = time.perf_counter()
         log.info("pipeline: %s", step)
         result = fn(step_config(cfg, out, step, **updates))
+        gc.collect()  # a stage's videos hang on reference cycles (trainer <-> module); free them before the next loads its own
         times[step] = round(time.perf_counter() - start, 1)
         return result
 

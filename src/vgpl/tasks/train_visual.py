@@ -63,13 +63,12 @@ def export_split(model: VisualPrior, root: str, env: str, split: str, checkpoint
     for f in files:
         if left <= 0:
             break
-        shard = read_shard(f, images=True)
+        shard = read_shard(f, images=True, rollouts=None if left == float("inf") else int(left), frames=max_frames)
         if shard.images is None:
             raise ValueError(f"{f}: key 'images' missing: generated with data.render=false; the visual prior needs video")
-        take = int(min(len(shard.rollout_ids), left))
-        p, g = propose_videos(model, torch.as_tensor(shard.images[:take, :max_frames]), progress=progress)
-        positions.append(p), logits.append(g), ids.append(torch.as_tensor(shard.rollout_ids[:take]))
-        left -= take
+        p, g = propose_videos(model, torch.as_tensor(shard.images), progress=progress)
+        positions.append(p), logits.append(g), ids.append(torch.as_tensor(shard.rollout_ids))
+        left -= len(shard.rollout_ids)
     prop = Proposals(torch.cat(positions), torch.cat(logits), torch.cat(ids), {"env": env, "split": split, "visual_checkpoint": checkpoint})
     return write_proposals(proposals_path(root, env, split), prop)
 
