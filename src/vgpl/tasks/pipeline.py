@@ -50,7 +50,7 @@ def pipeline(cfg: DictConfig) -> dict:
         start = time.perf_counter()
         log.info("pipeline: %s", step)
         result = fn(step_config(cfg, out, step, **updates))
-        gc.collect()  # a stage's videos hang on reference cycles (trainer <-> module); free them before the next loads its own
+        gc.collect()  # what a stage held (videos) can sit in reference cycles (trainer <-> module): free it before the next stage loads its own
         times[step] = round(time.perf_counter() - start, 1)
         return result
 
