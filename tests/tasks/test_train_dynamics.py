@@ -72,7 +72,7 @@ def test_reloaded_checkpoint_predicts_bit_for_bit(trained):
     torch.manual_seed(0)
     hist = torch.rand(1, 4, 192, 3)
     g = torch.nn.functional.one_hot(torch.arange(192) // 64, 3).float()[None]
-    args = (hist, g, torch.ones(1, 3), torch.tensor([[-9.0]]), torch.zeros(1, 4, 1, 4), torch.zeros(192, dtype=torch.bool))
+    args = (hist, g, torch.ones(1, 3), torch.tensor([[-9.0]]), torch.zeros(1, 5, 1, 4), torch.zeros(192, dtype=torch.bool))  # planes: history + the predicted frame
     with torch.no_grad():
         assert torch.equal(a.eval()(*args), b.eval()(*args))
     assert torch.equal(a.disp_std, b.disp_std) and float(a.disp_std.abs().sum()) > 0  # statistics travel with it
