@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import datetime
 import os
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -63,6 +64,26 @@ def read_shard(path: str | Path, images: bool = True, rollouts: int | None = Non
         arrays = {key: f[key][:rollouts] if template[0] == "R" else f[key][()] for key, (_, template) in DATASETS.items()}
         video = f["images"][:rollouts, :frames] if images and "images" in f else None
     return Shard(**arrays, images=video, attrs=info["attrs"])
+
+
+NO_VIDEO = "key 'images' missing: the dataset was generated with data.render=false; the visual stages need video"
+
+
+def read_first_rollouts(files: list[Path], max_rollouts: int | None = None, images: bool = False,
+                        frames: int | None = None) -> Iterator[tuple[Path, Shard]]:
+    """(file, shard) for shard files that hold consecutive rollouts in order, read only as far as
+    the first ``max_rollouts`` rollouts in all (None: every file); ``images`` and ``frames`` as in
+    read_shard, and with ``images`` a file without video raises DatasetError."""
+    left = max_rollouts
+    for f in files:
+        if left is not None and left <= 0:
+            return
+        shard = read_shard(f, images=images, rollouts=left, frames=frames)
+        if images and shard.images is None:
+            raise DatasetError(f"{f}: {NO_VIDEO}")
+        yield f, shard
+        if left is not None:
+            left -= len(shard.rollout_ids)
 
 
 def shard_is_complete(path: Path, config_hash: str) -> bool:

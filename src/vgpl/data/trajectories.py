@@ -17,7 +17,7 @@ import torch
 from torch.utils.data import DataLoader, Dataset
 
 from vgpl.data.schema import DatasetError
-from vgpl.data.shard import read_shard
+from vgpl.data.shard import NO_VIDEO, read_first_rollouts
 from vgpl.sim.scene import Scene
 
 
@@ -41,45 +41,38 @@ class Rollouts:
 
 def load_split(root: str | Path, env: str, split: str, images: bool = False, max_rollouts: int | None = None) -> Rollouts:
     """Read the shards of ``root/env/split`` (validated), in rollout order; the first
-    ``max_rollouts`` rollouts only when given (only those are read). Videos are copied once,
-    shard by shard, into one array: peak memory is the split's video plus one shard's."""
+    ``max_rollouts`` rollouts only when given (only those are read). Videos are read straight
+    into one array, with no copy per shard."""
     folder = Path(root) / env / split
     files = sorted(folder.glob("shard_*.h5"))
     if not files:
         raise DatasetError(f"{folder}: no shard_*.h5 files (generate them with task=generate env={env})")
-    shards, videos, left = [], [], float("inf") if max_rollouts is None else max_rollouts
-    for f in files:  # shard files hold consecutive rollouts in order, so the first files suffice
-        if left <= 0:
-            break
-        shard = read_shard(f, images=False, rollouts=None if left == float("inf") else int(left))
-        if images:
-            with h5py.File(f, "r") as h:
-                if "images" not in h:
-                    raise DatasetError(f"{f}: key 'images' missing: the dataset was generated with data.render=false; the visual stages need video")
-                videos.append((f, h["images"].shape[1:]))
-        shards.append(shard)
-        left -= len(shard.rollout_ids)
-    ids = np.concatenate([s.rollout_ids for s in shards])
-    order = np.argsort(ids, kind="stable")
+    # shard files hold consecutive rollouts in order, so the first files suffice
+    read = list(read_first_rollouts(files, max_rollouts))  # the video, if asked for, is read below, straight into one array
+    shards = [shard for _, shard in read]
+    order = np.argsort(np.concatenate([s.rollout_ids for s in shards]), kind="stable")
     cat = lambda key: torch.as_tensor(np.concatenate([getattr(s, key) for s in shards])[order])  # noqa: E731
     first = shards[0]
     return Rollouts(
         cat("positions"), cat("params"), cat("actions"), torch.as_tensor(first.instance), torch.as_tensor(first.rigid),
         torch.as_tensor(np.asarray(first.attrs["param_low"], np.float32)), torch.as_tensor(np.asarray(first.attrs["param_high"], np.float32)),
-        str(first.attrs["env"]), cat("rollout_ids"), _read_videos(videos, [len(s.rollout_ids) for s in shards], order) if images else None,
+        str(first.attrs["env"]), cat("rollout_ids"), _read_videos([(f, len(s.rollout_ids)) for f, s in read], order) if images else None,
     )
 
 
-def _read_videos(videos: list, counts: list[int], order: np.ndarray) -> torch.Tensor:
-    """The first ``counts[k]`` videos of each shard file into one uint8 array [R, T, H, W, 3]
-    (h5py reads straight into it), then put in rollout order."""
-    shape = videos[0][1]
-    out = np.empty((sum(counts), *shape), np.uint8)
-    start = 0
-    for (path, frame_shape), n in zip(videos, counts):
-        if frame_shape != shape:
-            raise DatasetError(f"{path}: 'images' of shape [R, {', '.join(map(str, frame_shape))}], the split's first shard has [R, {', '.join(map(str, shape))}]")
+def _read_videos(files: list[tuple[Path, int]], order: np.ndarray) -> torch.Tensor:
+    """The first n videos of each (shard file, n) into one uint8 array [R, T, H, W, 3] (h5py
+    reads straight into it, one file open each), then put in rollout order."""
+    out, start = None, 0
+    for path, n in files:
         with h5py.File(path, "r") as h:
+            if "images" not in h:
+                raise DatasetError(f"{path}: {NO_VIDEO}")
+            shape = h["images"].shape[1:]
+            if out is None:
+                out = np.empty((sum(k for _, k in files), *shape), np.uint8)
+            elif shape != out.shape[1:]:
+                raise DatasetError(f"{path}: 'images' of shape [R, {', '.join(map(str, shape))}], the split's first shard has [R, {', '.join(map(str, out.shape[1:]))}]")
             h["images"].read_direct(out, np.s_[:n], np.s_[start : start + n])
         start += n
     if not np.array_equal(order, np.arange(len(order))):

@@ -75,17 +75,18 @@ class DynamicsPrior(NormalisationBuffers, L.LightningModule):
 
     # ---- graph and features ---------------------------------------------------------------------
     def actuator_frames(self, history, planes, kinematic, kinematic_next):
-        """The frames whose motion the actuators show: (kinematic particle positions [B, H, N, 3],
-        planes [B, H, K, 4]): the history's, or with ``action_lookahead`` shifted one frame ahead."""
+        """The frames whose motion the actuators show: (kinematic particle positions [B, H, N, 3]
+        shifted one frame ahead, or None where the history's serve; planes [B, H, K, 4]): the
+        history's, or with ``action_lookahead`` shifted one frame ahead."""
         h = history.shape[1]
         if not self.hparams.action_lookahead:
-            return history, planes[:, :h]
+            return None, planes[:, :h]
         if planes.shape[1] < h + 1:
             raise ValueError(f"DynamicsPrior(action_lookahead=True): planes need {h + 1} frames (history + the predicted one), got {planes.shape[1]}")
         if kinematic.any() and kinematic_next is None:
             raise ValueError("DynamicsPrior(action_lookahead=True): kinematic particles need kinematic_next [B, N, 3], their positions at the predicted frame")
         if kinematic_next is None:
-            return history, planes[:, 1 : h + 1]
+            return None, planes[:, 1 : h + 1]
         return torch.cat([history[:, 1:], kinematic_next[:, None]], 1), planes[:, 1 : h + 1]
 
     def build_inputs(self, history, grouping, rigidness, params, planes, kinematic, kinematic_next=None):
@@ -94,7 +95,7 @@ class DynamicsPrior(NormalisationBuffers, L.LightningModule):
         x = history[:, -1]
         driven, motion = self.actuator_frames(history, planes, kinematic, kinematic_next)
         disp = self.to_normalised(history[:, 1:] - history[:, :-1])
-        if driven is not history:
+        if driven is not None:
             disp = torch.where(kinematic[None, None, :, None], self.to_normalised(driven[:, 1:] - driven[:, :-1]), disp)
         disp = disp.permute(0, 2, 1, 3).reshape(b, n, -1)
         q = (grouping * rigidness[:, None, :]).sum(-1)  # [B, N]

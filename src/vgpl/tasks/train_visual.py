@@ -14,7 +14,7 @@ from omegaconf import DictConfig
 from vgpl.checkpoint import load_stage, scene_of
 from vgpl.data.grounding import proposals_path
 from vgpl.data.proposals import Proposals, propose_videos, write_proposals
-from vgpl.data.shard import read_shard
+from vgpl.data.shard import read_first_rollouts
 from vgpl.data.video import VideoDataModule
 from vgpl.models.visual_prior import VisualPrior
 from vgpl.tasks.stage import fit, setup_run, stage_checkpoint
@@ -59,16 +59,9 @@ def export_split(model: VisualPrior, root: str, env: str, split: str, checkpoint
     if not files:
         raise FileNotFoundError(f"{Path(root) / env / split}: no shard_*.h5 files (generate them with task=generate env={env})")
     positions, logits, ids = [], [], []
-    left = float("inf") if max_rollouts is None else max_rollouts
-    for f in files:
-        if left <= 0:
-            break
-        shard = read_shard(f, images=True, rollouts=None if left == float("inf") else int(left), frames=max_frames)
-        if shard.images is None:
-            raise ValueError(f"{f}: key 'images' missing: generated with data.render=false; the visual prior needs video")
+    for _, shard in read_first_rollouts(files, max_rollouts, images=True, frames=max_frames):
         p, g = propose_videos(model, torch.as_tensor(shard.images), progress=progress)
         positions.append(p), logits.append(g), ids.append(torch.as_tensor(shard.rollout_ids))
-        left -= len(shard.rollout_ids)
     prop = Proposals(torch.cat(positions), torch.cat(logits), torch.cat(ids), {"env": env, "split": split, "visual_checkpoint": checkpoint})
     return write_proposals(proposals_path(root, env, split), prop)
 
