@@ -1,0 +1,88 @@
+"""InferenceModule training-step time on real VisualPrior proposals, for the settings that set
+its cost: batch size, one or two encoders (``separate_param_net``) and ``max_neighbors`` of the
+proposals' radius graphs.
+
+    python benchmarks/inference.py --data data/standard \
+        --dynamics checkpoints/standard/fluid_cube/dynamics/last.ckpt   # JSON lines on stdout
+
+A step is what Lightning runs: the module's loss (encoders, heads, the rollout through the frozen
+DynamicsPrior), backward and Adam, under bf16 autocast as the standard preset trains. Median over
+``--repeat`` steps after two warm-ups.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from machine import describe  # noqa: E402
+
+from vgpl.checkpoint import load_stage, scene_of  # noqa: E402
+from vgpl.data.grounding import GroundingDataModule  # noqa: E402
+from vgpl.models.dynamics_prior import DynamicsPrior  # noqa: E402
+from vgpl.models.inference import InferenceModule  # noqa: E402
+
+VARIANTS = [  # (batch, separate_param_net, max_neighbors)
+    (4, True, 24),   # the first standard run (session 4)
+    (2, True, 24),   # the paper's batch
+    (2, False, 24),  # the standard preset now
+    (2, False, 16),
+]
+
+
+def measure(dm: GroundingDataModule, dynamics: DynamicsPrior, scene, radius: float, batch: int, separate: bool,
+            max_neighbors: int, repeat: int) -> dict:
+    torch.manual_seed(0)
+    model = InferenceModule(scene.param_low.tolist(), scene.param_high.tolist(), scene.n_particles, scene.n_instances, radius,
+                            separate_param_net=separate, max_neighbors=max_neighbors)
+    model.set_stats(dynamics)
+    model.attach_dynamics(dynamics)
+    optimiser = torch.optim.Adam(model.parameters(), lr=1e-4)
+    dm.batch_size = batch
+    batches = iter(dm.train_dataloader())
+
+    def step() -> float:
+        b = next(batches)
+        start = time.perf_counter()
+        with torch.autocast("cpu", dtype=torch.bfloat16):
+            loss = model._losses(b)["loss"]
+        optimiser.zero_grad()
+        loss.backward()
+        optimiser.step()
+        return time.perf_counter() - start
+
+    step()
+    step()
+    times = [step() for _ in range(repeat)]
+    ms = float(np.median(times)) * 1e3
+    return {"batch": batch, "separate_param_net": separate, "max_neighbors": max_neighbors,
+            "step_ms": round(ms, 1), "ms_per_window": round(ms / batch, 1)}
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--data", default="data/standard", help="dataset root (holds <env>/proposals/train.h5)")
+    parser.add_argument("--dynamics", default="checkpoints/standard/fluid_cube/dynamics/last.ckpt")
+    parser.add_argument("--repeat", type=int, default=8)
+    parser.add_argument("--threads", type=int, default=2)
+    args = parser.parse_args()
+    torch.set_num_threads(args.threads)
+    dynamics, cfg = load_stage(args.dynamics, DynamicsPrior)
+    scene = scene_of(cfg)
+    dm = GroundingDataModule(args.data, scene, 10, 5, 2, cfg.env.get("start_frame", 0), 1, 20)
+    dm.setup()
+    machine = describe()
+    for batch, separate, neighbors in VARIANTS:
+        row = measure(dm, dynamics, scene, float(cfg.env.graph_radius), batch, separate, neighbors, args.repeat)
+        print(json.dumps({"benchmark": "inference_train_step", "env": scene.name, **row, "machine": machine}), flush=True)
+
+
+if __name__ == "__main__":
+    main()
