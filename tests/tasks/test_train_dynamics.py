@@ -63,6 +63,9 @@ def test_evaluation_from_the_checkpoint_alone_reproduces_the_numbers(trained):
     from PIL import Image
 
     assert Image.open(tmp / "run/rollout_truth_vs_prediction.gif").n_frames == 10
+    # the parameter sweep over the inference module's window (tests/eval/test_identifiability.py checks its numbers)
+    assert len(again["rollout_l1_over_grid/gravity"]) == 9 and 0 <= again["oracle_param_mae_pct/gravity"] <= 100
+    assert again["midpoint_param_mae_pct/gravity"] > 0 and Image.open(tmp / "run/oracle_gravity.png").size[0] > 100
 
 
 def test_reloaded_checkpoint_predicts_bit_for_bit(trained):

@@ -14,6 +14,8 @@ from omegaconf import DictConfig
 from vgpl.checkpoint import load_stage, scene_of
 from vgpl.data.schema import DatasetError
 from vgpl.data.trajectories import TrajectoryDataModule, ground_truth_grouping, load_split
+from vgpl.eval.figures import params_figure, save
+from vgpl.eval.identifiability import oracle_param_sweep
 from vgpl.eval.rollout import future_mse, rollout
 from vgpl.eval.preview import write_gif
 from vgpl.eval.tensorboard_media import add_gif, rollout_video
@@ -48,6 +50,23 @@ def evaluate_rollouts(
         pred = rollout(model, positions, grouping, rigidness, test.params[:n], planes, torch.as_tensor(scene.kinematic), n_steps)
     truth = positions[:, h:]
     return future_mse(pred, truth), pred, truth
+
+
+def evaluate_identifiability(model: DynamicsPrior, scene: Scene, root: str, observed: int, horizon: int, grid: int,
+                             max_rollouts: int | None = None, start_frame: int = 0) -> dict:
+    """``oracle_param_sweep`` on the test split over the inference module's training window:
+    ``observed`` frames from ``start_frame`` on plus ``horizon`` more, rolled from the first H."""
+    test = load_split(root, scene.name, "test", max_rollouts=max_rollouts)
+    n_frames = observed + horizon
+    if start_frame + n_frames > test.positions.shape[1]:
+        raise ValueError(f"identifiability: {start_frame} + {observed} observed + {horizon} frames exceed the {test.positions.shape[1]}-frame rollouts")
+    frames = slice(start_frame, start_frame + n_frames)
+    n = test.positions.shape[0]
+    model.eval()
+    return oracle_param_sweep(
+        model, test.positions[:, frames], ground_truth_grouping(test).expand(n, -1, -1), test.rigid.float().expand(n, -1), test.params,
+        scene.planes_at(test.actions[:, frames]), torch.as_tensor(scene.kinematic), n_frames - model.hparams.history, grid,
+    ) | {"truth": test.params}
 
 
 def train_dynamics(cfg: DictConfig) -> dict:
@@ -102,4 +121,16 @@ def evaluate_dynamics(cfg: DictConfig) -> dict:
     result = {"env": scene.name, "checkpoint": str(cfg.ckpt_path), **metrics}
     (out / "metrics.json").write_text(json.dumps(result, indent=1))
     write_gif(rollout_video(scene.camera, scene.instance, truth[0], pred[0]), out / "rollout_truth_vs_prediction.gif", fps=15)
+    grid = int(cfg.task.get("param_grid", 0))
+    if grid > 0:
+        inf = cfg.model.inference
+        sweep = evaluate_identifiability(model, scene, root, inf.observed, inf.net.horizon, grid, cfg.eval.get("max_rollouts"), train_cfg.env.get("start_frame", 0))
+        for j, name in enumerate(scene.param_names):
+            result[f"oracle_param_mae_pct/{name}"] = float(sweep["oracle_param_mae_pct"][j])
+            result[f"midpoint_param_mae_pct/{name}"] = float(sweep["midpoint_param_mae_pct"][j])
+            result[f"rollout_l1_over_grid/{name}"] = [round(float(v), 5) for v in sweep["loss_curve"][j]]
+            save(params_figure(sweep["truth"][:, j], sweep["oracle_params"][:, j], float(scene.param_low[j]), float(scene.param_high[j]), name,
+                               f"{scene.name}: argmin of the prior's rollout L1"), out / f"oracle_{name}.png")
+        log.info("identifiability: %s", {k: v for k, v in result.items() if "param_mae" in k})
+    (out / "metrics.json").write_text(json.dumps(result, indent=1))
     return result

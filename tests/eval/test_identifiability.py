@@ -1,0 +1,68 @@
+from __future__ import annotations
+
+from types import SimpleNamespace
+
+import pytest
+import torch
+
+from vgpl.eval.identifiability import oracle_param_sweep
+from vgpl.eval.rollout import rollout
+
+
+class Falling:
+    """A stand-in prior: constant-acceleration motion whose acceleration along y is P (or 0 when
+    ``blind``, a prior that ignores P)."""
+
+    hparams = SimpleNamespace(history=2)
+    disp_std = torch.tensor(0.01)
+    low, high = torch.tensor([-15.0]), torch.tensor([-5.0])
+
+    def __init__(self, blind: bool = False) -> None:
+        self.blind = blind
+
+    def normalise_params(self, p):
+        return (p - self.low) / (self.high - self.low) * 2 - 1
+
+    def to_physical(self, u):
+        return (u + 1) / 2 * (self.high - self.low) + self.low
+
+    def step(self, window, grouping, rigidness, params, planes, kinematic, driven=None):
+        accel = torch.zeros_like(window[:, -1])
+        if not self.blind:
+            accel[..., 1] = params[:, :1] * (1 / 60) ** 2
+        return 2 * window[:, -1] - window[:, -2] + accel
+
+
+def _scenes(params: torch.Tensor, n_steps: int = 8, n: int = 5):
+    torch.manual_seed(0)
+    b = params.shape[0]
+    start = torch.rand(b, 2, n, 3)
+    start[:, 1] = start[:, 0] + 0.001
+    planes, kinematic = torch.zeros(b, 2 + n_steps, 0, 4), torch.zeros(n, dtype=torch.bool)
+    truth = torch.cat([start, rollout(Falling(), start, None, None, params, planes, kinematic, n_steps)], 1)
+    return truth, planes, kinematic
+
+
+def test_a_prior_that_depends_on_p_recovers_it_to_within_half_a_grid_step():
+    params = torch.tensor([[-15.0], [-12.5], [-7.5], [-5.0], [-11.2]])  # the first four on the 9-point grid
+    positions, planes, kinematic = _scenes(params)
+    out = oracle_param_sweep(Falling(), positions, None, None, params, planes, kinematic, n_steps=8, grid=9)
+    truth = Falling().normalise_params(params)
+    assert out["midpoint_param_mae_pct"].item() == pytest.approx((truth.abs() * 50).mean().item())
+    # on-grid scenes exact; -11.2 is 0.3 of a 1.25 step from -12.5: the nearest grid value, -11.25
+    assert out["oracle_param_mae_pct"].item() == pytest.approx(abs(-11.25 - -11.2) / 10 * 100 / 5, abs=1e-3)
+    assert out["loss_curve"].shape == (1, 9) and out["grid"].shape == (9,)
+
+
+def test_a_prior_blind_to_p_has_a_flat_loss_and_no_oracle():
+    params = torch.tensor([[-14.0], [-6.0]])
+    positions, planes, kinematic = _scenes(params)
+    out = oracle_param_sweep(Falling(blind=True), positions, None, None, params, planes, kinematic, n_steps=8, grid=5)
+    curve = out["loss_curve"][0]
+    assert torch.allclose(curve, curve[0].expand_as(curve))
+    assert out["oracle_param_mae_pct"].item() > out["midpoint_param_mae_pct"].item()  # ties go to the range's low end
+
+
+def test_grid_of_one_value_is_refused():
+    with pytest.raises(ValueError, match="grid=1"):
+        oracle_param_sweep(Falling(), torch.zeros(1, 3, 2, 3), None, None, torch.tensor([[-10.0]]), torch.zeros(1, 3, 0, 4), torch.zeros(2, dtype=torch.bool), 1, grid=1)
