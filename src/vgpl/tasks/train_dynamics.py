@@ -13,6 +13,8 @@ from omegaconf import DictConfig
 
 from vgpl.checkpoint import load_stage, scene_of
 from vgpl.data.schema import DatasetError
+from vgpl.data.grounding import proposals_path
+from vgpl.data.proposals import read_proposals
 from vgpl.data.trajectories import TrajectoryDataModule, ground_truth_grouping, load_split
 from vgpl.eval.figures import params_figure, save
 from vgpl.eval.identifiability import oracle_param_sweep
@@ -53,19 +55,30 @@ def evaluate_rollouts(
 
 
 def evaluate_identifiability(model: DynamicsPrior, scene: Scene, root: str, observed: int, horizon: int, grid: int,
-                             max_rollouts: int | None = None, start_frame: int = 0) -> dict:
+                             max_rollouts: int | None = None, start_frame: int = 0, history: str = "truth") -> dict:
     """``oracle_param_sweep`` on the test split over the inference module's training window:
-    ``observed`` frames from ``start_frame`` on plus ``horizon`` more, rolled from the first H."""
+    ``observed`` frames from ``start_frame`` on plus ``horizon`` more, rolled from the first H.
+    ``history="proposals"`` starts the rollouts from the VisualPrior's exported proposals instead
+    of the true positions (what an inference module without refinement would see)."""
+    if history not in ("truth", "proposals"):
+        raise ValueError(f"task.param_sweep_history={history!r}: expected 'truth' or 'proposals'")
     test = load_split(root, scene.name, "test", max_rollouts=max_rollouts)
     n_frames = observed + horizon
     if start_frame + n_frames > test.positions.shape[1]:
         raise ValueError(f"identifiability: {start_frame} + {observed} observed + {horizon} frames exceed the {test.positions.shape[1]}-frame rollouts")
     frames = slice(start_frame, start_frame + n_frames)
-    n = test.positions.shape[0]
+    n, h = test.positions.shape[0], model.hparams.history
+    positions = test.positions[:, frames].clone()
+    if history == "proposals":
+        path = proposals_path(root, scene.name, "test")
+        proposals = read_proposals(path)
+        if proposals.positions.shape[0] < n or not torch.equal(proposals.rollout_ids[:n], test.rollout_ids) or proposals.positions.shape[1] < start_frame + h:
+            raise DatasetError(f"{path}: proposals do not cover the first {n} test rollouts' frames {start_frame}..{start_frame + h - 1}; re-export with task=export_proposals")
+        positions[:, :h] = proposals.positions[:n, start_frame : start_frame + h]
     model.eval()
     return oracle_param_sweep(
-        model, test.positions[:, frames], ground_truth_grouping(test).expand(n, -1, -1), test.rigid.float().expand(n, -1), test.params,
-        scene.planes_at(test.actions[:, frames]), torch.as_tensor(scene.kinematic), n_frames - model.hparams.history, grid,
+        model, positions, ground_truth_grouping(test).expand(n, -1, -1), test.rigid.float().expand(n, -1), test.params,
+        scene.planes_at(test.actions[:, frames]), torch.as_tensor(scene.kinematic), n_frames - h, grid,
     ) | {"truth": test.params}
 
 
@@ -124,7 +137,10 @@ def evaluate_dynamics(cfg: DictConfig) -> dict:
     grid = int(cfg.task.get("param_grid", 0))
     if grid > 0:
         inf = cfg.model.inference
-        sweep = evaluate_identifiability(model, scene, root, inf.observed, inf.net.horizon, grid, cfg.eval.get("max_rollouts"), train_cfg.env.get("start_frame", 0))
+        history = cfg.task.get("param_sweep_history", "truth")
+        sweep = evaluate_identifiability(model, scene, root, inf.observed, inf.net.horizon, grid, cfg.eval.get("max_rollouts"),
+                                         train_cfg.env.get("start_frame", 0), history)
+        result["param_sweep_history"] = history
         for j, name in enumerate(scene.param_names):
             result[f"oracle_param_mae_pct/{name}"] = float(sweep["oracle_param_mae_pct"][j])
             result[f"midpoint_param_mae_pct/{name}"] = float(sweep["midpoint_param_mae_pct"][j])
