@@ -33,8 +33,9 @@ def observed_proposals(visual, images: torch.Tensor, start: int, frames: int) ->
 
 @torch.no_grad()
 def evaluate_grounding(dynamics, visual, inference, scene, test: Rollouts, ablation, observed: int = 10, n_steps: int = 20,
-                       max_observed: int = 20, start_frame: int = 0, seed: int = 0) -> GroundingResult:
+                       max_observed: int = 20, start_frame: int = 0, seed: int = 0, chunk: int = 8) -> GroundingResult:
     """Infer from ``observed`` frames of each test video (from ``start_frame``), roll ``n_steps`` on.
+    The rigidness curve runs the inference module on ``chunk`` videos at a time (bounded memory).
 
     ``ablation`` has booleans rigidness, refinement, params. The rigidness curve is measured for
     T = 1 .. ``max_observed`` when the ablation infers rigidness.
@@ -80,7 +81,12 @@ def evaluate_grounding(dynamics, visual, inference, scene, test: Rollouts, ablat
         types = scene.instance_types
         probs = []
         for t in range(1, t_max + 1):
-            q = inference(proposals[:, :t], torch.softmax(logits[:, :t], -1).mean(1), kinematic)["rigidness"]
+            # a few videos at a time: all 100 at T = 20 make 17M proposal edges, 10 GB per
+            # activation, and ran memory-bound for over half an hour on 2 cores
+            q = torch.cat([
+                inference(proposals[i : i + chunk, :t], torch.softmax(logits[i : i + chunk, :t], -1).mean(1), kinematic)["rigidness"]
+                for i in range(0, len(proposals), chunk)
+            ])
             probs.append(correct_rigidness_prob(q, test.rigid))  # [R, M]
         probs = torch.stack(probs, -1)  # [R, M, T]
         for name in dict.fromkeys(types):
