@@ -15,7 +15,7 @@ from vgpl.checkpoint import load_stage, scene_of
 from vgpl.data.schema import DatasetError
 from vgpl.data.grounding import proposals_path
 from vgpl.data.proposals import read_proposals
-from vgpl.data.trajectories import TrajectoryDataModule, ground_truth_grouping, load_split
+from vgpl.data.trajectories import Rollouts, TrajectoryDataModule, ground_truth_grouping, load_split
 from vgpl.eval.figures import params_figure, save
 from vgpl.eval.identifiability import oracle_param_sweep
 from vgpl.eval.rollout import future_mse, rollout
@@ -29,14 +29,13 @@ log = logging.getLogger(__name__)
 
 
 def evaluate_rollouts(
-    model: DynamicsPrior, scene: Scene, root: str, observed: int, n_steps: int, max_rollouts: int | None = None, start_frame: int = 0
+    model: DynamicsPrior, scene: Scene, test: Rollouts, observed: int, n_steps: int, max_rollouts: int | None = None, start_frame: int = 0
 ) -> tuple[dict, torch.Tensor, torch.Tensor]:
-    """Future MSE x 1e4 on the test split: observe ``observed`` frames from ``start_frame`` on,
-    roll ``n_steps`` forward.
+    """Future MSE x 1e4 on the test split ``test``: observe ``observed`` frames from ``start_frame``
+    on, roll ``n_steps`` forward, on its first ``max_rollouts`` rollouts.
 
     Returns: (metrics, predictions [R, n_steps, N, 3], ground truth [R, n_steps, N, 3]).
     """
-    test = load_split(root, scene.name, "test")
     h = model.hparams.history
     start = start_frame + observed - h
     if start + h + n_steps > test.positions.shape[1]:
@@ -54,32 +53,33 @@ def evaluate_rollouts(
     return future_mse(pred, truth), pred, truth
 
 
-def evaluate_identifiability(model: DynamicsPrior, scene: Scene, root: str, observed: int, horizon: int, grid: int,
+def evaluate_identifiability(model: DynamicsPrior, scene: Scene, test: Rollouts, root: str, observed: int, horizon: int, grid: int,
                              max_rollouts: int | None = None, start_frame: int = 0, history: str = "truth") -> dict:
-    """``oracle_param_sweep`` on the test split over the inference module's training window:
-    ``observed`` frames from ``start_frame`` on plus ``horizon`` more, rolled from the first H.
-    ``history="proposals"`` starts the rollouts from the VisualPrior's exported proposals instead
-    of the true positions (what an inference module without refinement would see)."""
+    """``oracle_param_sweep`` on the first ``max_rollouts`` rollouts of the test split ``test``
+    (read from ``root``), over the inference module's training window: ``observed`` frames from
+    ``start_frame`` on plus ``horizon`` more, rolled from the first H. ``history="proposals"``
+    starts the rollouts from the VisualPrior's exported proposals instead of the true positions
+    (what an inference module without refinement would see)."""
     if history not in ("truth", "proposals"):
         raise ValueError(f"task.param_sweep_history={history!r}: expected 'truth' or 'proposals'")
-    test = load_split(root, scene.name, "test", max_rollouts=max_rollouts)
     n_frames = observed + horizon
     if start_frame + n_frames > test.positions.shape[1]:
         raise ValueError(f"identifiability: {start_frame} + {observed} observed + {horizon} frames exceed the {test.positions.shape[1]}-frame rollouts")
     frames = slice(start_frame, start_frame + n_frames)
-    n, h = test.positions.shape[0], model.hparams.history
-    positions = test.positions[:, frames].clone()
+    n = test.positions.shape[0] if max_rollouts is None else min(max_rollouts, test.positions.shape[0])
+    h = model.hparams.history
+    positions = test.positions[:n, frames].clone()
     if history == "proposals":
         path = proposals_path(root, scene.name, "test")
         proposals = read_proposals(path)
-        if proposals.positions.shape[0] < n or not torch.equal(proposals.rollout_ids[:n], test.rollout_ids) or proposals.positions.shape[1] < start_frame + h:
+        if proposals.positions.shape[0] < n or not torch.equal(proposals.rollout_ids[:n], test.rollout_ids[:n]) or proposals.positions.shape[1] < start_frame + h:
             raise DatasetError(f"{path}: proposals do not cover the first {n} test rollouts' frames {start_frame}..{start_frame + h - 1}; re-export with task=export_proposals")
         positions[:, :h] = proposals.positions[:n, start_frame : start_frame + h]
     model.eval()
     return oracle_param_sweep(
-        model, positions, ground_truth_grouping(test).expand(n, -1, -1), test.rigid.float().expand(n, -1), test.params,
-        scene.planes_at(test.actions[:, frames]), torch.as_tensor(scene.kinematic), n_frames - h, grid,
-    ) | {"truth": test.params}
+        model, positions, ground_truth_grouping(test).expand(n, -1, -1), test.rigid.float().expand(n, -1), test.params[:n],
+        scene.planes_at(test.actions[:n, frames]), torch.as_tensor(scene.kinematic), n_frames - h, grid,
+    ) | {"truth": test.params[:n]}
 
 
 def train_dynamics(cfg: DictConfig) -> dict:
@@ -100,7 +100,8 @@ def train_dynamics(cfg: DictConfig) -> dict:
     if not trainer.is_global_zero:  # under DDP the other ranks stop here; rank 0 evaluates and writes
         return {"env": scene.name, "checkpoint": str(last)}
     metrics, pred, truth = evaluate_rollouts(
-        model, scene, cfg.data.root, cfg.eval.observed, cfg.eval.n_steps, cfg.eval.get("max_rollouts"), cfg.env.get("start_frame", 0)
+        model, scene, load_split(cfg.data.root, scene.name, "test"), cfg.eval.observed, cfg.eval.n_steps, cfg.eval.get("max_rollouts"),
+        cfg.env.get("start_frame", 0),
     )
     writer = trainer.logger.experiment
     for key, value in metrics.items():
@@ -128,17 +129,17 @@ def evaluate_dynamics(cfg: DictConfig) -> dict:
     if test.positions.shape[2] != scene.n_particles:
         raise DatasetError(f"{root}/{scene.name}: {test.positions.shape[2]} particles, checkpoint {cfg.ckpt_path} expects {scene.n_particles}")
     metrics, pred, truth = evaluate_rollouts(
-        model, scene, root, cfg.eval.observed, cfg.eval.n_steps, cfg.eval.get("max_rollouts"), train_cfg.env.get("start_frame", 0)
+        model, scene, test, cfg.eval.observed, cfg.eval.n_steps, cfg.eval.get("max_rollouts"), train_cfg.env.get("start_frame", 0)
     )
     out = Path(cfg.paths.output_dir)
     result = {"env": scene.name, "checkpoint": str(cfg.ckpt_path), **metrics}
-    (out / "metrics.json").write_text(json.dumps(result, indent=1))
+    (out / "metrics.json").write_text(json.dumps(result, indent=1))  # kept if the sweep below fails (e.g. no proposals)
     write_gif(rollout_video(scene.camera, scene.instance, truth[0], pred[0]), out / "rollout_truth_vs_prediction.gif", fps=15)
     grid = int(cfg.task.get("param_grid", 0))
     if grid > 0:
         inf = cfg.model.inference
         history = cfg.task.get("param_sweep_history", "truth")
-        sweep = evaluate_identifiability(model, scene, root, inf.observed, inf.net.horizon, grid, cfg.eval.get("max_rollouts"),
+        sweep = evaluate_identifiability(model, scene, test, root, inf.observed, inf.net.horizon, grid, cfg.eval.get("max_rollouts"),
                                          train_cfg.env.get("start_frame", 0), history)
         result["param_sweep_history"] = history
         for j, name in enumerate(scene.param_names):
