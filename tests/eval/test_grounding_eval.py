@@ -1,5 +1,8 @@
 from __future__ import annotations
 
+import dataclasses
+
+import pytest
 import torch
 from omegaconf import OmegaConf
 
@@ -11,7 +14,7 @@ from vgpl.models.visual_prior import VisualPrior
 from vgpl.sim.envs import make_scene
 
 
-def test_rigidness_curve_is_the_same_whatever_the_chunk_of_videos():
+def _setup():
     torch.manual_seed(0)
     scene = make_scene("rigid_fall", n_steps=40)
     n, m, r, t = scene.n_particles, scene.n_instances, 5, 40
@@ -24,11 +27,47 @@ def test_rigidness_curve_is_the_same_whatever_the_chunk_of_videos():
         instance=torch.as_tensor(scene.instance), rigid=torch.as_tensor(scene.rigid), param_low=torch.as_tensor(scene.param_low),
         param_high=torch.as_tensor(scene.param_high), env=scene.name, images=torch.randint(0, 255, (r, t, 120, 160, 3), dtype=torch.uint8),
     )
-    full = OmegaConf.create({"rigidness": True, "refinement": True, "params": True})
-    kwargs = dict(observed=6, n_steps=5, max_observed=8)
-    one = evaluate_grounding(dyn, visual, inf, scene, test, full, chunk=r, **kwargs)
-    split = evaluate_grounding(dyn, visual, inf, scene, test, full, chunk=2, **kwargs)
+    return (dyn, visual, inf, scene, test), r
+
+
+def _ablation(**off):
+    return OmegaConf.create({"rigidness": True, "refinement": True, "params": True, **{k: False for k in off}})
+
+
+KWARGS = dict(observed=6, n_steps=5, max_observed=8)
+
+
+def _assert_same_metrics(a: dict, b: dict) -> None:
+    assert a.keys() == b.keys()
+    for k in a:
+        assert abs(a[k] - b[k]) <= 1e-5 * max(1.0, abs(a[k])), (k, a[k], b[k])
+
+
+def test_numbers_are_the_same_whatever_the_chunk_of_videos():
+    models, r = _setup()
+    one = evaluate_grounding(*models, _ablation(), chunk=r, **KWARGS)
+    split = evaluate_grounding(*models, _ablation(), chunk=2, **KWARGS)
     assert set(one.rigidness_curve) == {"cube"} and len(one.rigidness_curve["cube"]) == 8
     for name, curve in one.rigidness_curve.items():
         torch.testing.assert_close(torch.tensor(split.rigidness_curve[name]), torch.tensor(curve))
-    assert split.metrics == one.metrics
+        assert one.metrics[f"rigidness_prob@6/{name}"] == pytest.approx(curve[5], rel=1e-5)  # T = observed, all videos
+    _assert_same_metrics(split.metrics, one.metrics)
+    torch.testing.assert_close(split.params, one.params)
+
+
+def test_uniform_parameter_draws_do_not_depend_on_the_chunk():
+    models, r = _setup()
+    one = evaluate_grounding(*models, _ablation(), chunk=r, **KWARGS)
+    draws = evaluate_grounding(*models, _ablation(params=False), chunk=r, **KWARGS)
+    split = evaluate_grounding(*models, _ablation(params=False), chunk=2, **KWARGS)
+    assert torch.equal(split.params, draws.params) and not torch.allclose(draws.params, one.params)
+
+
+def test_rigidness_curve_on_a_subset_keeps_the_reported_point_on_all_videos():
+    (dyn, visual, inf, scene, test), r = _setup()
+    every = evaluate_grounding(dyn, visual, inf, scene, test, _ablation(), **KWARGS)
+    first = evaluate_grounding(dyn, visual, inf, scene, test, _ablation(), curve_rollouts=2, **KWARGS)
+    two = dataclasses.replace(test, positions=test.positions[:2], params=test.params[:2], actions=test.actions[:2], images=test.images[:2])
+    only_two = evaluate_grounding(dyn, visual, inf, scene, two, _ablation(), **KWARGS)
+    assert first.metrics["rigidness_prob@6/cube"] == pytest.approx(every.metrics["rigidness_prob@6/cube"], rel=1e-6)
+    assert first.rigidness_curve["cube"] == pytest.approx(only_two.rigidness_curve["cube"], rel=1e-6)

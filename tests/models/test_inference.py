@@ -25,27 +25,48 @@ def test_capped_radius_graph_keeps_the_nearest_neighbours():
         assert set(sources.tolist()) == set(dist[i].topk(5, largest=False).indices.tolist())
 
 
-def _modules(n=24, m=2):
+def _modules(n=24, m=2, **kwargs):
     dyn = DynamicsPrior([-15.0], [-5.0], m, radius=0.3, width=16)
-    inf = InferenceModule([-15.0], [-5.0], n, m, radius=0.3, width=16, horizon=2)
+    inf = InferenceModule([-15.0], [-5.0], n, m, radius=0.3, width=16, horizon=2, **kwargs)
     inf.set_stats(dyn)
     inf.attach_dynamics(dyn)
     return dyn, inf
 
 
-def test_training_loss_reaches_rigidness_and_parameters_only_through_the_frozen_prior():
-    torch.manual_seed(0)
-    dyn, inf = _modules()
-    b, t, n = 2, 8, 24
-    batch = {
+def _batch(b=2, t=8, n=24):
+    return {
         "proposals": torch.rand(b, t, n, 3), "logits": torch.randn(b, t, n, 2), "positions": torch.rand(b, t + 2, n, 3),
         "planes": torch.zeros(b, t + 2, 0, 4), "params": torch.tensor([[-9.0], [-12.0]]), "kinematic": torch.zeros(b, n, dtype=torch.bool),
     }
-    inf._losses(batch)["loss"].backward()
+
+
+def test_training_loss_reaches_rigidness_and_parameters_only_through_the_frozen_prior():
+    torch.manual_seed(0)
+    dyn, inf = _modules()
+    inf._losses(_batch())["loss"].backward()
     assert inf.rigid_head.lins[-1].weight.grad.abs().sum() > 0
     assert inf.param_head.lins[-1].weight.grad.abs().sum() > 0
     assert all(p.grad is None for p in dyn.parameters())  # frozen
     assert not any(k.startswith("dynamics") for k in inf.state_dict())  # not part of the checkpoint
+
+
+@pytest.mark.parametrize("start", ["refined", "truth"])
+def test_trajectory_from_the_true_start_trains_the_refinement_by_its_direct_loss_only(start):
+    torch.manual_seed(0)
+    _, inf = _modules(trajectory_start=start)
+    losses = inf._losses(_batch())
+    refine_grad, param_grad = torch.autograd.grad(
+        losses["rollout"], [inf.refine_head.lins[-1].weight, inf.param_head.lins[-1].weight], allow_unused=True)
+    assert param_grad.abs().sum() > 0  # P is trained through the trajectory either way
+    if start == "truth":
+        assert refine_grad is None  # the trajectory no longer sees the refined frames
+    else:
+        assert refine_grad.abs().sum() > 0
+
+
+def test_unknown_trajectory_start_is_refused():
+    with pytest.raises(ValueError, match="trajectory_start='proposals'"):
+        _modules(trajectory_start="proposals")
 
 
 def test_ablation_switches():

@@ -62,7 +62,8 @@ def evaluate(cfg: DictConfig) -> dict:
         raise ValueError(f"{cfg.data.root}/{env}/test: {test.positions.shape[2]} particles, the checkpoints expect {n}")
     observed = cfg.model.inference.observed if cfg.eval.get("observed") is None else cfg.eval.observed
     result = evaluate_grounding(dynamics, visual, inference, scene, test, cfg.ablation, observed, cfg.eval.n_steps,
-                                cfg.eval.get("max_observed", 20), cfg.env.get("start_frame", 0), cfg.seed)
+                                cfg.eval.get("max_observed", 20), cfg.env.get("start_frame", 0), cfg.seed,
+                                curve_rollouts=cfg.eval.get("curve_rollouts"))
     record = {"env": env, "method": "vgpl", "ablation": cfg.ablation.name, "n_test": int(test.positions.shape[0]),
               "observed": observed, "checkpoints": {k: str(v) for k, v in paths.items()}, **result.metrics,
               "rigidness_curve": result.rigidness_curve}
