@@ -50,18 +50,23 @@ def test_training_loss_reaches_rigidness_and_parameters_only_through_the_frozen_
     assert not any(k.startswith("dynamics") for k in inf.state_dict())  # not part of the checkpoint
 
 
-@pytest.mark.parametrize("start", ["refined", "truth"])
-def test_trajectory_from_the_true_start_trains_the_refinement_by_its_direct_loss_only(start):
+@pytest.mark.parametrize("start", ["refined", "truth", "both"])
+def test_which_trajectory_trains_the_refinement_and_which_the_parameters(start):
     torch.manual_seed(0)
     _, inf = _modules(trajectory_start=start)
     losses = inf._losses(_batch())
-    refine_grad, param_grad = torch.autograd.grad(
-        losses["rollout"], [inf.refine_head.lins[-1].weight, inf.param_head.lins[-1].weight], allow_unused=True)
-    assert param_grad.abs().sum() > 0  # P is trained through the trajectory either way
-    if start == "truth":
-        assert refine_grad is None  # the trajectory no longer sees the refined frames
-    else:
+    heads = [inf.refine_head.lins[-1].weight, inf.param_head.lins[-1].weight]
+    grads = {k: torch.autograd.grad(losses[k], heads, allow_unused=True, retain_graph=True) for k in ("rollout", "rollout_from_truth") if k in losses}
+    assert set(grads) == {"refined": {"rollout"}, "truth": {"rollout_from_truth"}, "both": {"rollout", "rollout_from_truth"}}[start]
+    if "rollout_from_truth" in grads:  # from the true frames: P, never dX
+        refine_grad, param_grad = grads["rollout_from_truth"]
+        assert refine_grad is None and param_grad.abs().sum() > 0
+    if "rollout" in grads:  # from the refined frames: dX, and P unless the true start trains it
+        refine_grad, param_grad = grads["rollout"]
         assert refine_grad.abs().sum() > 0
+        assert (param_grad is None) if start == "both" else (param_grad.abs().sum() > 0)
+    expected = losses["refine"] + sum(losses[k] for k in grads)
+    torch.testing.assert_close(losses["loss"], expected)
 
 
 def test_unknown_trajectory_start_is_refused():

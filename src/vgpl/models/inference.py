@@ -6,7 +6,8 @@ prior predicts from (X' + dX, G, Q, P) and the ground truth (plus a direct L1 of
 positions, as the original code adds). ``trajectory_start="truth"`` rolls the trajectory from the
 true first frames instead, so that it trains Q and P and the refinement learns from its direct L1
 alone: from noisy starting frames the trajectory loss is lowest at the most damping parameter
-whatever the scene (measured; README, Design). Nothing supervises Q or P directly, unless
+whatever the scene (measured; README, Design). ``"both"`` rolls from each, P learning from the
+true start only and dX through the refined one. Nothing supervises Q or P directly, unless
 ``param_weight`` > 0 adds an L1 on P (not the paper: a shortcut for presets of a few CPU
 minutes, whose dynamics prior is too weak to ground P through; README).
 """
@@ -83,8 +84,8 @@ class InferenceModule(NormalisationBuffers, L.LightningModule):
         trajectory_start: str = "refined",
     ) -> None:
         super().__init__()
-        if trajectory_start not in ("refined", "truth"):
-            raise ValueError(f"InferenceModule: trajectory_start={trajectory_start!r}, expected 'refined' (the paper) or 'truth'")
+        if trajectory_start not in ("refined", "truth", "both"):
+            raise ValueError(f"InferenceModule: trajectory_start={trajectory_start!r}, expected 'refined' (the paper), 'truth' or 'both'")
         self.save_hyperparameters()
         self.register_normalisation(param_low, param_high)
         node_dim = 3 + 3 + n_instances + 1
@@ -167,14 +168,22 @@ class InferenceModule(NormalisationBuffers, L.LightningModule):
             losses["one_step"] = ((pred - target) / scale).abs()[:, movable].mean()
         # the trajectory: from the first h refined (or true) frames through the rest of the window
         # and k frames past it; a wrong parameter's error grows with every step, which makes P visible
-        n_roll = t - h + k
+        n_roll, mode = t - h + k, self.hparams.trajectory_start
         if n_roll > 0:
-            start = x[:, :h] if self.hparams.trajectory_start == "refined" else truth[:, :h]
-            future = rollout(dyn, torch.cat([start, truth[:, h : t + k]], 1), g, q, p, planes, kinematic, n_roll)
-            losses["rollout"] = ((future - truth[:, h : t + k]) / scale).abs()[:, :, movable].mean()
+            target = truth[:, h : t + k]
+
+            def trajectory_l1(start: torch.Tensor, params: torch.Tensor) -> torch.Tensor:
+                future = rollout(dyn, torch.cat([start, target], 1), g, q, params, planes, kinematic, n_roll)
+                return ((future - target) / scale).abs()[:, :, movable].mean()
+
+            if mode in ("refined", "both"):  # "both": P learns from the true start only
+                losses["rollout"] = trajectory_l1(x[:, :h], p if mode == "refined" else p.detach())
+            if mode in ("truth", "both"):
+                losses["rollout_from_truth"] = trajectory_l1(truth[:, :h], p)
         losses["refine"] = ((out["positions"] - truth[:, :t]) / scale).abs()[:, :, movable].mean()
         p_error = (out["params_normalised"] - self.normalise_params(batch["params"])).abs()
-        losses["loss"] = losses.get("one_step", 0.0) + losses.get("rollout", 0.0) + self.hparams.refine_weight * losses["refine"]
+        losses["loss"] = (losses.get("one_step", 0.0) + losses.get("rollout", 0.0) + losses.get("rollout_from_truth", 0.0)
+                          + self.hparams.refine_weight * losses["refine"])
         if self.hparams.param_weight > 0:  # NOT the paper: a supervised shortcut for CPU-minute presets (README)
             losses["loss"] = losses["loss"] + self.hparams.param_weight * p_error.mean()
         losses["param_mae_pct"] = (p_error * 50.0).mean()
