@@ -71,3 +71,9 @@ def test_rigidness_curve_on_a_subset_keeps_the_reported_point_on_all_videos():
     only_two = evaluate_grounding(dyn, visual, inf, scene, two, _ablation(), **KWARGS)
     assert first.metrics["rigidness_prob@6/cube"] == pytest.approx(every.metrics["rigidness_prob@6/cube"], rel=1e-6)
     assert first.rigidness_curve["cube"] == pytest.approx(only_two.rigidness_curve["cube"], rel=1e-6)
+
+
+def test_an_empty_curve_subset_is_refused():
+    models, _ = _setup()
+    with pytest.raises(ValueError, match="eval.curve_rollouts=0"):
+        evaluate_grounding(*models, _ablation(), curve_rollouts=0, **KWARGS)

@@ -58,6 +58,8 @@ def evaluate_grounding(dynamics, visual, inference, scene, test: Rollouts, ablat
         raise ValueError(f"eval: {start_frame} skipped + {observed} observed + {n_steps} predicted frames exceed the {n_frames}-frame rollouts")
     if observed < h:
         raise ValueError(f"eval.observed={observed} is shorter than the dynamics prior's history of {h} frames")
+    if curve_rollouts is not None and curve_rollouts < 1:
+        raise ValueError(f"eval.curve_rollouts={curve_rollouts}: expected at least 1 test video, or null for all")
     t_max = min(max(observed, max_observed), n_frames - start_frame)
     proposals, logits = observed_proposals(visual, test.images, start_frame, t_max)
     seen = slice(start_frame, start_frame + observed)
