@@ -66,3 +66,13 @@ def test_a_prior_blind_to_p_has_a_flat_loss_and_no_oracle():
 def test_grid_of_one_value_is_refused():
     with pytest.raises(ValueError, match="grid=1"):
         oracle_param_sweep(Falling(), torch.zeros(1, 3, 2, 3), None, None, torch.tensor([[-10.0]]), torch.zeros(1, 3, 0, 4), torch.zeros(2, dtype=torch.bool), 1, grid=1)
+
+
+def test_gate_names_only_the_parameters_whose_oracle_is_not_below_the_ratio_times_the_midpoint():
+    from vgpl.tasks.identifiability import unidentified
+
+    metrics = {"oracle_param_mae_pct/a": 15.0, "midpoint_param_mae_pct/a": 27.2,   # FluidCube, horizon 15
+               "oracle_param_mae_pct/b": 35.9, "midpoint_param_mae_pct/b": 29.1}   # MassRope, session 7
+    assert unidentified(metrics, ["a", "b"], max_ratio=1.0) == {"b": (35.9, 29.1)}
+    assert unidentified(metrics, ["a", "b"], max_ratio=0.5) == {"a": (15.0, 27.2), "b": (35.9, 29.1)}
+    assert unidentified(metrics, ["a"], max_ratio=15.0 / 27.2) == {"a": (15.0, 27.2)}  # equal is a failure: strictly below

@@ -182,3 +182,27 @@ def test_ddp_on_two_cpu_processes_matches_single_process_training(tmp_path):
     ddp, single = score(tmp_path / "ddp/dynamics/last.ckpt"), score(tmp_path / "single/dynamics/last.ckpt")
     assert torch.load(tmp_path / "ddp/dynamics/last.ckpt", weights_only=False)["global_step"] == 6
     assert abs(ddp - single) < 0.05 * single
+
+
+def test_identifiability_gate_writes_its_sweep_and_warns_or_stops(trained, caplog):
+    import json
+
+    from vgpl.tasks.identifiability import IdentifiabilityError, check_identifiability
+
+    tmp, result = trained
+    gate = ["task=pipeline", "task.identifiability.grid=5", "task.identifiability.max_rollouts=3"]
+    passed = check_identifiability(config(tmp, *gate, "task.identifiability.max_ratio=1e9"))
+    written = json.loads((tmp / "run/identifiability.json").read_text())
+    assert passed["identified"] and written["identified"] and written["checkpoint"] == result["checkpoint"]
+    assert len(written["rollout_l1_over_grid/gravity"]) == 5 and 0 <= written["oracle_param_mae_pct/gravity"] <= 100
+    # the same numbers as task=evaluate_dynamics over the same videos and grid
+    again = evaluate_dynamics(config(tmp, "task=evaluate_dynamics", f"ckpt_path={result['checkpoint']}", "task.param_grid=5", "eval.max_rollouts=3"))
+    assert again["oracle_param_mae_pct/gravity"] == written["oracle_param_mae_pct/gravity"]
+    with caplog.at_level("WARNING"):  # max_ratio=0: nothing passes
+        warned = check_identifiability(config(tmp, *gate, "task.identifiability.max_ratio=0"))
+    assert not warned["identified"] and "does not identify gravity" in caplog.text
+    with pytest.raises(IdentifiabilityError, match=r"dynamics/last.ckpt: the prior's rollout loss does not identify gravity: oracle"):
+        check_identifiability(config(tmp, *gate, "task.identifiability.max_ratio=0", "task.identifiability.on_fail=stop"))
+    assert check_identifiability(config(tmp, *gate, "task.identifiability.on_fail=off")) == {"skipped": True}
+    with pytest.raises(ValueError, match="task.identifiability.on_fail='never': expected one of"):
+        check_identifiability(config(tmp, *gate, "task.identifiability.on_fail=never"))

@@ -1,6 +1,7 @@
 """task=pipeline (the default of ``python run.py``): the whole of VGPL on one environment.
 
-generate -> train_dynamics -> train_visual -> export_proposals -> train_inference (full and
+generate -> train_dynamics -> identifiability (can the prior's rollout loss find P? warn or stop)
+-> train_visual -> export_proposals -> train_inference (full and
 no_rigidness) -> [train_baseline] -> evaluate (every ablation [and the baseline]) -> report.
 Each step writes into ``<run dir>/<step>/``; checkpoints go to the stable ``paths.ckpt_dir``,
 so ``ckpt_path=last`` resumes a killed pipeline (finished shards are skipped, training resumes).
@@ -17,6 +18,7 @@ from omegaconf import DictConfig, OmegaConf
 
 from vgpl.tasks.evaluate import evaluate, write_tables
 from vgpl.tasks.generate import generate
+from vgpl.tasks.identifiability import check_identifiability, identifiability_summary
 from vgpl.tasks.train_dynamics import train_dynamics
 from vgpl.tasks.train_inference import train_inference
 from vgpl.tasks.train_visual import export_proposals, train_visual
@@ -56,6 +58,7 @@ def pipeline(cfg: DictConfig) -> dict:
 
     run("generate", generate)
     run("train_dynamics", train_dynamics)
+    identifiability = run("identifiability", check_identifiability)
     run("train_visual", train_visual)
     run("export_proposals", export_proposals)
     variants = ["full"] + (["no_rigidness"] if "no_rigidness" in cfg.task.ablations else [])
@@ -70,6 +73,9 @@ def pipeline(cfg: DictConfig) -> dict:
     if baseline:
         records.append(run("evaluate/densephysnet", evaluate, model={**OmegaConf.to_container(cfg.model, resolve=True), "name": "densephysnet"}))
     text = write_tables(records, out)
+    if not identifiability.get("skipped"):
+        text += identifiability_summary(identifiability)
+        (out / "report.md").write_text(text)
     print(text)
     log.info("pipeline step times (s): %s", times)
-    return {"env": cfg.env.name, "records": records, "times_s": times, "report": str(out / "report.md")}
+    return {"env": cfg.env.name, "identifiability": identifiability, "records": records, "times_s": times, "report": str(out / "report.md")}

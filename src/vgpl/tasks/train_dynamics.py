@@ -13,16 +13,13 @@ from omegaconf import DictConfig
 
 from vgpl.checkpoint import load_stage, scene_of
 from vgpl.data.schema import DatasetError
-from vgpl.data.grounding import proposals_path
-from vgpl.data.proposals import read_proposals
 from vgpl.data.trajectories import Rollouts, TrajectoryDataModule, ground_truth_grouping, load_split
-from vgpl.eval.figures import params_figure, save
-from vgpl.eval.identifiability import oracle_param_sweep
 from vgpl.eval.rollout import future_mse, rollout
 from vgpl.eval.preview import write_gif
 from vgpl.eval.tensorboard_media import add_gif, rollout_video
 from vgpl.models.dynamics_prior import DynamicsPrior
 from vgpl.sim.scene import Scene
+from vgpl.tasks.identifiability import sweep_metrics
 from vgpl.tasks.stage import fit, setup_run
 
 log = logging.getLogger(__name__)
@@ -51,35 +48,6 @@ def evaluate_rollouts(
         pred = rollout(model, positions, grouping, rigidness, test.params[:n], planes, torch.as_tensor(scene.kinematic), n_steps)
     truth = positions[:, h:]
     return future_mse(pred, truth), pred, truth
-
-
-def evaluate_identifiability(model: DynamicsPrior, scene: Scene, test: Rollouts, root: str, observed: int, horizon: int, grid: int,
-                             max_rollouts: int | None = None, start_frame: int = 0, history: str = "truth") -> dict:
-    """``oracle_param_sweep`` on the first ``max_rollouts`` rollouts of the test split ``test``
-    (read from ``root``), over the inference module's training window: ``observed`` frames from
-    ``start_frame`` on plus ``horizon`` more, rolled from the first H. ``history="proposals"``
-    starts the rollouts from the VisualPrior's exported proposals instead of the true positions
-    (what an inference module without refinement would see)."""
-    if history not in ("truth", "proposals"):
-        raise ValueError(f"task.param_sweep_history={history!r}: expected 'truth' or 'proposals'")
-    n_frames = observed + horizon
-    if start_frame + n_frames > test.positions.shape[1]:
-        raise ValueError(f"identifiability: {start_frame} + {observed} observed + {horizon} frames exceed the {test.positions.shape[1]}-frame rollouts")
-    frames = slice(start_frame, start_frame + n_frames)
-    n = test.positions.shape[0] if max_rollouts is None else min(max_rollouts, test.positions.shape[0])
-    h = model.hparams.history
-    positions = test.positions[:n, frames].clone()
-    if history == "proposals":
-        path = proposals_path(root, scene.name, "test")
-        proposals = read_proposals(path)
-        if proposals.positions.shape[0] < n or not torch.equal(proposals.rollout_ids[:n], test.rollout_ids[:n]) or proposals.positions.shape[1] < start_frame + h:
-            raise DatasetError(f"{path}: proposals do not cover the first {n} test rollouts' frames {start_frame}..{start_frame + h - 1}; re-export with task=export_proposals")
-        positions[:, :h] = proposals.positions[:n, start_frame : start_frame + h]
-    model.eval()
-    return oracle_param_sweep(
-        model, positions, ground_truth_grouping(test).expand(n, -1, -1), test.rigid.float().expand(n, -1), test.params[:n],
-        scene.planes_at(test.actions[:n, frames]), torch.as_tensor(scene.kinematic), n_frames - h, grid,
-    ) | {"truth": test.params[:n]}
 
 
 def train_dynamics(cfg: DictConfig) -> dict:
@@ -137,17 +105,7 @@ def evaluate_dynamics(cfg: DictConfig) -> dict:
     write_gif(rollout_video(scene.camera, scene.instance, truth[0], pred[0]), out / "rollout_truth_vs_prediction.gif", fps=15)
     grid = int(cfg.task.get("param_grid", 0))
     if grid > 0:
-        inf = cfg.model.inference
-        history = cfg.task.get("param_sweep_history", "truth")
-        sweep = evaluate_identifiability(model, scene, test, root, inf.observed, inf.net.horizon, grid, cfg.eval.get("max_rollouts"),
-                                         train_cfg.env.get("start_frame", 0), history)
-        result["param_sweep_history"] = history
-        for j, name in enumerate(scene.param_names):
-            result[f"oracle_param_mae_pct/{name}"] = float(sweep["oracle_param_mae_pct"][j])
-            result[f"midpoint_param_mae_pct/{name}"] = float(sweep["midpoint_param_mae_pct"][j])
-            result[f"rollout_l1_over_grid/{name}"] = [round(float(v), 5) for v in sweep["loss_curve"][j]]
-            save(params_figure(sweep["truth"][:, j], sweep["oracle_params"][:, j], float(scene.param_low[j]), float(scene.param_high[j]), name,
-                               f"{scene.name}: argmin of the prior's rollout L1"), out / f"oracle_{name}.png")
+        result |= sweep_metrics(model, scene, test, cfg, train_cfg, out, grid, cfg.eval.get("max_rollouts"), cfg.task.get("param_sweep_history", "truth"))
         log.info("identifiability: %s", {k: v for k, v in result.items() if "param_mae" in k})
     (out / "metrics.json").write_text(json.dumps(result, indent=1))
     return result
