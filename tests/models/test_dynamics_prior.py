@@ -123,3 +123,38 @@ def test_action_lookahead_needs_the_predicted_frame():
         model(tr.positions[:, :4], g, q, tr.params, planes[:, :4], kin, tr.positions[:, 4])
     with pytest.raises(ValueError, match="kinematic_next"):
         model(tr.positions[:, :4], g, q, tr.params, planes[:, :5], kin)
+
+
+def _window_batch(tr, g, q, planes, kin, start: int, frames: int) -> dict:
+    b = tr.positions.shape[0]
+    return {"positions": tr.positions[:, start : start + frames], "planes": planes[:, start : start + frames], "params": tr.params,
+            "grouping": g, "rigidness": q, "kinematic": kin.expand(b, -1)}
+
+
+def test_rollout_steps_loss_rolls_on_its_own_predictions_and_its_first_step_is_the_one_step_loss():
+    scene, tr, g, q, planes, kin = inputs("mass_rope", batch=2, steps=30)  # the pin is kinematic: driven from the data
+    make = lambda k: DynamicsPrior(scene.param_low.tolist(), scene.param_high.tolist(), scene.n_instances, radius=0.08,  # noqa: E731
+                                   action_lookahead=True, rollout_steps=k)
+    torch.manual_seed(0)
+    one = make(1)
+    three = make(3)
+    three.load_state_dict(one.state_dict())
+    batch = _window_batch(tr, g, q, planes, kin, 10, 7)
+    with torch.no_grad():
+        loss1, first1 = one._loss(batch, noise=False)
+        loss3, first3 = three._loss(batch, noise=False)
+        pred = rollout(three, batch["positions"], g, q, tr.params, batch["planes"], kin, 3)
+        teacher = torch.stack([three.step(batch["positions"][:, j : j + 4], g, q, tr.params, batch["planes"][:, j : j + 5], kin,
+                                          batch["positions"][:, j + 4]) for j in range(3)], 1)
+    truth = batch["positions"][:, 4:7]
+    rolled = ((pred - truth) / three.disp_std).abs()[:, :, ~kin].mean()
+    forced = ((teacher - truth) / three.disp_std).abs()[:, :, ~kin].mean()
+    assert loss1 == first1 and float(first3) == pytest.approx(float(loss1), rel=1e-5)  # k = 1 is exactly the old loss
+    assert float(loss3) == pytest.approx(float(rolled), rel=1e-5)
+    assert abs(float(loss3) - float(forced)) > 1e-3 * float(forced)  # not teacher-forced: step 2 starts from step 1's prediction
+    three._loss(batch, noise=True)[0].backward()
+    assert all(p.grad is not None for p in three.parameters() if p.requires_grad)
+    with pytest.raises(ValueError, match="rollout_steps=3\\): windows of 5 frames, expected history 4 \\+ 3"):
+        three._loss(_window_batch(tr, g, q, planes, kin, 10, 5), noise=False)
+    with pytest.raises(ValueError, match="rollout_steps=0"):
+        make(0)

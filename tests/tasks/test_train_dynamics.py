@@ -206,3 +206,19 @@ def test_identifiability_gate_writes_its_sweep_and_warns_or_stops(trained, caplo
     assert check_identifiability(config(tmp, *gate, "task.identifiability.on_fail=off")) == {"skipped": True}
     with pytest.raises(ValueError, match="task.identifiability.on_fail='never': expected one of"):
         check_identifiability(config(tmp, *gate, "task.identifiability.on_fail=never"))
+
+
+def test_multi_step_training_logs_its_rollout_loss_beside_the_one_step_one(trained):
+    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+    tmp, _ = trained
+    result = train_dynamics(config(tmp, "task=train_dynamics", "model.dynamics.net.rollout_steps=3", f"paths.ckpt_dir={tmp}/ckpt3",
+                                   "trainer.limit_train_batches=4", "trainer.log_every_n_steps=1"))
+    model, _ = load_dynamics(result["checkpoint"])
+    assert model.hparams.rollout_steps == 3 and result["future_mse_x1e4@1"] > 0
+    events = EventAccumulator(str(tmp / "ckpt3/dynamics/tensorboard"))
+    events.Reload()
+    tags = set(events.Tags()["scalars"])
+    assert {"train/loss", "train/one_step", "val/loss", "val/rollout_loss"} <= tags
+    # an untrained model drifts: its 3-step error exceeds its first step's
+    assert events.Scalars("val/rollout_loss")[-1].value > events.Scalars("val/loss")[-1].value

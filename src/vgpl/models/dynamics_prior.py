@@ -11,6 +11,12 @@ particles (the actuators, whose motion is the action and comes from the data) en
 displacements up to the frame being predicted, not only up to the current one. The actuators of
 FluidCube and MassRope follow a random walk whose next kick cannot be read from their history
 (README: design).
+
+With ``rollout_steps`` k > 1 the training loss rolls the model k steps from the (noisy) history
+on its own predictions, gradients through every step, and averages the position error over them
+(in units of the displacement std; k = 1 is the usual one-step loss, exactly). A prior trained
+one step at a time can drift over the inference module's 15-frame window in a way that depends
+on P (MassRope, session 7: a stiffer rope damps the drift), which a multi-step loss penalises.
 """
 
 from __future__ import annotations
@@ -20,6 +26,7 @@ import torch
 from torch import nn
 from torch_geometric.nn import MLP
 
+from vgpl.eval.rollout import rollout
 from vgpl.graph import edge_features, max_degree, plane_ghosts, radius_graph
 from vgpl.nn.normalisation import NormalisationBuffers
 from vgpl.nn.propagation import EdgeEncoder, Propagator
@@ -52,8 +59,11 @@ class DynamicsPrior(NormalisationBuffers, L.LightningModule):
         lr_decay: float = 1.0,
         rigid_dropout: float = 0.0,
         action_lookahead: bool = False,
+        rollout_steps: int = 1,
     ) -> None:
         super().__init__()
+        if rollout_steps < 1:
+            raise ValueError(f"DynamicsPrior: rollout_steps={rollout_steps}, expected at least 1 (steps rolled in the training loss)")
         self.save_hyperparameters()
         n_params = len(param_low)
         self.register_normalisation(param_low, param_high)
@@ -164,10 +174,16 @@ class DynamicsPrior(NormalisationBuffers, L.LightningModule):
         return nxt
 
     # ---- training -------------------------------------------------------------------------------
-    def _loss(self, batch, noise: bool) -> torch.Tensor:
-        h = self.hparams.history
+    def _loss(self, batch, noise: bool) -> tuple[torch.Tensor, torch.Tensor]:
+        """(mean L1 over the ``rollout_steps`` rolled steps, L1 of the first step), normalised.
+        batch["positions"] [B, H + k, N, 3]: frames after the history are the targets and drive
+        the kinematic particles."""
+        h, k = self.hparams.history, self.hparams.rollout_steps
         kinematic = batch["kinematic"][0]
-        history = batch["positions"][:, :h]
+        positions = batch["positions"]
+        if positions.shape[1] < h + k:
+            raise ValueError(f"DynamicsPrior(rollout_steps={k}): windows of {positions.shape[1]} frames, expected history {h} + {k}")
+        history = positions[:, :h]
         rigidness = batch["rigidness"]
         if noise and self.hparams.noise > 0:
             history = add_history_noise(history, self.hparams.noise * self.disp_std, ~kinematic)
@@ -175,20 +191,32 @@ class DynamicsPrior(NormalisationBuffers, L.LightningModule):
             # a rigid body is also a (stiff) non-rigid one: teaching the per-particle head rigid motion
             # makes q = 0 a usable input (the no-rigidness ablation) and q's estimate a real choice
             rigidness = rigidness * (torch.rand_like(rigidness) >= self.hparams.rigid_dropout)
-        target = self.to_normalised(batch["positions"][:, h] - history[:, -1])
-        pred = self(history, batch["grouping"], rigidness, batch["params"], batch["planes"][:, : h + 1], kinematic, batch["positions"][:, h])
-        return (pred - target).abs()[:, ~kinematic].mean()
+        if k == 1:
+            target = self.to_normalised(positions[:, h] - history[:, -1])
+            pred = self(history, batch["grouping"], rigidness, batch["params"], batch["planes"][:, : h + 1], kinematic, positions[:, h])
+            loss = (pred - target).abs()[:, ~kinematic].mean()
+            return loss, loss
+        start = torch.cat([history, positions[:, h : h + k]], 1)  # the future frames only drive the kinematic parts
+        pred = rollout(self, start, batch["grouping"], rigidness, batch["params"], batch["planes"][:, : h + k], kinematic, k)
+        error = ((pred - positions[:, h : h + k]) / self.disp_std).abs()[:, :, ~kinematic]  # [B, k, movable, 3]
+        return error.mean(), error[:, 0].mean()
 
     def training_step(self, batch, batch_idx):
-        loss = self._loss(batch, noise=True)
-        self.log("train/loss", loss, prog_bar=True, batch_size=batch["positions"].shape[0])
-        self.log("train/max_degree", float(self.max_degree_seen), batch_size=batch["positions"].shape[0])
+        loss, first = self._loss(batch, noise=True)
+        b = batch["positions"].shape[0]
+        self.log("train/loss", loss, prog_bar=True, batch_size=b)
+        if self.hparams.rollout_steps > 1:
+            self.log("train/one_step", first, batch_size=b)
+        self.log("train/max_degree", float(self.max_degree_seen), batch_size=b)
         return loss
 
     def validation_step(self, batch, batch_idx):
-        loss = self._loss(batch, noise=False)
-        self.log("val/loss", loss, prog_bar=True, batch_size=batch["positions"].shape[0])
-        return loss
+        loss, first = self._loss(batch, noise=False)
+        b = batch["positions"].shape[0]
+        self.log("val/loss", first, prog_bar=True, batch_size=b)  # the one-step loss: comparable across rollout_steps
+        if self.hparams.rollout_steps > 1:
+            self.log("val/rollout_loss", loss, batch_size=b)
+        return first
 
     def configure_optimizers(self):
         opt = torch.optim.Adam(self.parameters(), lr=self.hparams.lr)
