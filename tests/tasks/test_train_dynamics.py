@@ -222,3 +222,15 @@ def test_multi_step_training_logs_its_rollout_loss_beside_the_one_step_one(train
     assert {"train/loss", "train/one_step", "val/loss", "val/rollout_loss"} <= tags
     # an untrained model drifts: its 3-step error exceeds its first step's
     assert events.Scalars("val/rollout_loss")[-1].value > events.Scalars("val/loss")[-1].value
+
+
+def test_init_from_starts_a_fine_tune_from_the_checkpoints_weights(trained):
+    tmp, result = trained
+    # lr 0: the weights never move, so the fine-tune's test rollouts are the source's exactly
+    tuned = train_dynamics(config(tmp, "task=train_dynamics", f"model.dynamics.init_from={result['checkpoint']}", "model.dynamics.net.lr=0",
+                                  "model.dynamics.net.rollout_steps=2", f"paths.ckpt_dir={tmp}/ckpt_tuned", "trainer.limit_train_batches=2"))
+    assert tuned["future_mse_x1e4@10"] == result["future_mse_x1e4@10"]
+    assert load_dynamics(tuned["checkpoint"])[0].hparams.rollout_steps == 2
+    with pytest.raises(CheckpointError, match="init_from has other layer shapes than model.dynamics.net"):
+        train_dynamics(config(tmp, "task=train_dynamics", f"model.dynamics.init_from={result['checkpoint']}", "model.dynamics.net.width=16",
+                              f"paths.ckpt_dir={tmp}/ckpt_bad"))
