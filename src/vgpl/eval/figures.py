@@ -3,6 +3,7 @@ against true particles, inferred against true parameters."""
 
 from __future__ import annotations
 
+import textwrap
 from pathlib import Path
 
 import matplotlib
@@ -48,7 +49,8 @@ def params_figure(truth: torch.Tensor, pred: torch.Tensor, low: float, high: flo
     fig, ax = plt.subplots(figsize=(3.4, 3.2), dpi=120)
     ax.plot([low, high], [low, high], color="grey", lw=0.8)
     ax.scatter(truth.numpy(), pred.numpy(), s=8)
-    ax.set(xlabel=f"true {name}", ylabel=f"inferred {name}", xlim=(low, high), ylim=(low, high), title=title, aspect="equal")
+    ax.set(xlabel=f"true {name}", ylabel=f"inferred {name}", xlim=(low, high), ylim=(low, high), aspect="equal")
+    ax.set_title(textwrap.fill(title, 34), fontsize=9)  # the figure is narrow: wrap rather than clip
     fig.tight_layout()
     return fig
 
