@@ -27,10 +27,10 @@ from vgpl.tasks.train_inference import inference_stage
 log = logging.getLogger(__name__)
 
 
-def write_tables(records: list[dict], out: Path) -> str:
-    """report.md, table1.csv and table2.csv in ``out``; returns the Markdown."""
+def write_tables(records: list[dict], out: Path, notes: str = "") -> str:
+    """report.md (the tables, then ``notes``), table1.csv and table2.csv in ``out``; returns the Markdown."""
     out.mkdir(parents=True, exist_ok=True)
-    text = report_markdown(records)
+    text = report_markdown(records) + notes
     (out / "report.md").write_text(text)
     (out / "table1.csv").write_text(csv_text(*table1_rows(records)))
     (out / "table2.csv").write_text(csv_text(*table2_rows(records)))

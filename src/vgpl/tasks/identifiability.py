@@ -117,14 +117,12 @@ def check_identifiability(cfg: DictConfig) -> dict:
     model, train_cfg = load_stage(path, DynamicsPrior, env=scene.name, n_particles=scene.n_particles)
     out = Path(cfg.paths.output_dir)
     out.mkdir(parents=True, exist_ok=True)
-    test = load_split(cfg.data.root, scene.name, "test")
+    test = load_split(cfg.data.root, scene.name, "test", max_rollouts=spec.get("max_rollouts"))  # only the videos swept
     metrics = sweep_metrics(model, scene, test, cfg, train_cfg, out, int(spec.grid), spec.get("max_rollouts"))
     failed = unidentified(metrics, scene.param_names, float(spec.max_ratio))
     result = {"env": scene.name, "checkpoint": str(path), "param_names": list(scene.param_names), **metrics, "max_ratio": float(spec.max_ratio), "identified": not failed}
     (out / "identifiability.json").write_text(json.dumps(result, indent=1))
-    for name in scene.param_names:
-        log.info("identifiability of %s: oracle %.1f%% against the midpoint's %.1f%%", name,
-                 metrics[f"oracle_param_mae_pct/{name}"], metrics[f"midpoint_param_mae_pct/{name}"])
+    log.info(identifiability_summary(result))
     if failed:
         detail = "; ".join(f"{n}: oracle {o:.1f}% against the midpoint's {m:.1f}% (needs < {spec.max_ratio} x)" for n, (o, m) in failed.items())
         message = (f"{path}: the prior's rollout loss does not identify {detail}. No inference module can ground it through this "

@@ -72,10 +72,7 @@ def pipeline(cfg: DictConfig) -> dict:
     records = [run(f"evaluate/{a}", evaluate, ablation=ablation_config(a)) for a in cfg.task.ablations]
     if baseline:
         records.append(run("evaluate/densephysnet", evaluate, model={**OmegaConf.to_container(cfg.model, resolve=True), "name": "densephysnet"}))
-    text = write_tables(records, out)
-    if not identifiability.get("skipped"):
-        text += identifiability_summary(identifiability)
-        (out / "report.md").write_text(text)
+    text = write_tables(records, out, "" if identifiability.get("skipped") else identifiability_summary(identifiability))
     print(text)
     log.info("pipeline step times (s): %s", times)
     return {"env": cfg.env.name, "identifiability": identifiability, "records": records, "times_s": times, "report": str(out / "report.md")}
