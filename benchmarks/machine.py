@@ -7,16 +7,15 @@ import platform
 
 import torch
 
+from vgpl.hardware import ISA_FLAGS, bf16_native, cpu_info
+
 
 def describe() -> dict:
-    cpu = platform.processor() or ""
-    try:
-        with open("/proc/cpuinfo") as f:
-            cpu = next((line.split(":", 1)[1].strip() for line in f if line.startswith("model name")), cpu)
-    except OSError:
-        pass
+    cpu, flags = cpu_info()
     return {
         "cpu": cpu,
+        "isa": [flag for flag in ISA_FLAGS if flag in flags],
+        "bf16_native": bf16_native(flags),
         "cores": os.cpu_count(),
         "torch": torch.__version__,
         "torch_threads": torch.get_num_threads(),

@@ -12,6 +12,8 @@ from lightning.pytorch.callbacks import ModelCheckpoint
 from lightning.pytorch.loggers import TensorBoardLogger
 from omegaconf import DictConfig, OmegaConf
 
+from vgpl.hardware import precision_warning
+
 log = logging.getLogger(__name__)
 
 
@@ -52,6 +54,9 @@ def fit(cfg: DictConfig, stage: str, stage_cfg: DictConfig, model: L.LightningMo
         callbacks=[ModelCheckpoint(dirpath=folder, filename="best", monitor=monitor, save_last=True)],
         default_root_dir=str(folder),
     )
+    warning = precision_warning(str(kwargs.get("precision")), str(kwargs.get("accelerator", "auto")), torch.cuda.is_available())
+    if warning:
+        log.warning(warning)
     ckpt_path = cfg.get("ckpt_path")
     if ckpt_path == "last" and not (folder / "last.ckpt").is_file():
         log.info("%s: no last.ckpt yet, starting from scratch", folder)

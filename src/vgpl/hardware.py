@@ -1,0 +1,44 @@
+"""What the CPU can do fast: its vector extensions, and whether bf16 arithmetic is native.
+
+On a CPU without ``avx512_bf16`` or ``amx_bf16`` (e.g. Intel Cascade Lake), PyTorch emulates
+bf16 and ``trainer.precision=bf16-mixed`` is slower than fp32: 245 against 119 ms a RigidFall
+dynamics training step, measured (README: Speed). On the AMD EPYC of the earlier measurements,
+which has it, bf16-mixed was 2-2.6x faster than fp32 (benchmarks/results_dynamics.jsonl).
+"""
+
+from __future__ import annotations
+
+import functools
+import platform
+
+# the extensions that decide the speed of this project's CPU training
+ISA_FLAGS = ("avx2", "avx512f", "avx512_bf16", "avx512_vnni", "amx_bf16", "amx_tile")
+BF16_FLAGS = frozenset({"avx512_bf16", "amx_bf16"})
+
+
+@functools.cache
+def cpu_info(path: str = "/proc/cpuinfo") -> tuple[str, frozenset[str]]:
+    """(model name, set of feature flags) of the first CPU; flags are empty where ``path`` is unreadable."""
+    try:
+        with open(path) as f:
+            lines = f.read().splitlines()
+    except OSError:
+        return platform.processor() or "", frozenset()
+    field = lambda key: next((line.split(":", 1)[1] for line in lines if line.startswith(key)), "")  # noqa: E731
+    return field("model name").strip() or platform.processor() or "", frozenset(field("flags").split())
+
+
+def bf16_native(flags: frozenset[str] | None = None) -> bool | None:
+    """Whether the CPU computes bf16 natively; None where its flags cannot be read."""
+    flags = cpu_info()[1] if flags is None else flags
+    return bool(flags & BF16_FLAGS) if flags else None
+
+
+def precision_warning(precision: str, accelerator: str, cuda: bool, flags: frozenset[str] | None = None) -> str | None:
+    """A warning when ``precision`` asks for bf16 on a CPU that would emulate it, else None.
+    ``flags``: the CPU's feature flags (default: this machine's)."""
+    on_cpu = accelerator == "cpu" or (accelerator == "auto" and not cuda)
+    if str(precision).startswith("bf16") and on_cpu and bf16_native(flags) is False:
+        return (f"trainer.precision={precision} on a CPU without avx512_bf16 or amx_bf16 ({cpu_info()[0]}): "
+                "bf16 is emulated here and about 2x slower than trainer.precision=32-true")
+    return None

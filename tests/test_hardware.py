@@ -1,0 +1,31 @@
+"""The CPU description benchmarks print, and the warning for bf16 on a CPU that emulates it."""
+
+from vgpl.hardware import bf16_native, cpu_info, precision_warning
+
+CASCADE_LAKE = frozenset({"avx2", "avx512f", "avx512_vnni"})
+ZEN4 = CASCADE_LAKE | {"avx512_bf16"}
+SAPPHIRE_RAPIDS = CASCADE_LAKE | {"amx_bf16", "amx_tile"}
+
+
+def test_bf16_is_native_only_with_avx512_bf16_or_amx():
+    assert bf16_native(CASCADE_LAKE) is False
+    assert bf16_native(ZEN4) is True and bf16_native(SAPPHIRE_RAPIDS) is True
+    assert bf16_native(frozenset()) is None  # unreadable flags: unknown, not "no"
+
+
+def test_cpu_info_reads_model_and_flags(tmp_path):
+    info = tmp_path / "cpuinfo"
+    info.write_text("processor\t: 0\nmodel name\t: Test CPU @ 1GHz\nflags\t\t: fpu avx2 avx512f\n\nprocessor\t: 1\nflags\t\t: fpu\n")
+    assert cpu_info(str(info)) == ("Test CPU @ 1GHz", frozenset({"fpu", "avx2", "avx512f"}))
+    assert cpu_info(str(tmp_path / "missing"))[1] == frozenset()
+
+
+def test_bf16_warning_only_where_a_cpu_would_emulate_it():
+    warning = precision_warning("bf16-mixed", "auto", cuda=False, flags=CASCADE_LAKE)
+    assert "trainer.precision=bf16-mixed" in warning and "32-true" in warning
+    assert precision_warning("bf16-mixed", "cpu", cuda=True, flags=CASCADE_LAKE) is not None  # forced onto the CPU
+    assert precision_warning("bf16-mixed", "auto", cuda=False, flags=ZEN4) is None
+    assert precision_warning("bf16-mixed", "auto", cuda=True, flags=CASCADE_LAKE) is None  # trains on the GPU
+    assert precision_warning("bf16-mixed", "gpu", cuda=True, flags=CASCADE_LAKE) is None
+    assert precision_warning("32-true", "cpu", cuda=False, flags=CASCADE_LAKE) is None
+    assert precision_warning("bf16-mixed", "cpu", cuda=False, flags=frozenset()) is None  # unknown CPU: no guess
