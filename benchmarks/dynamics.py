@@ -5,7 +5,7 @@
 For graphs of RigidFall, FluidCube and MassRope size (real simulated windows spread over a
 rollout, the env's radius):
 training step (forward + backward + Adam, graph construction included for vgpl; in float32 and in
-bf16 mixed precision, which this CPU's AVX-512 BF16 units run about 5x faster), forward, and
+bf16 mixed precision: fast only where the CPU has avx512_bf16 or amx, see the machine's `isa`), forward, and
 one rollout step at batch 1 (median of repeated calls); growth of the peak resident set; and the multiply-adds
 each design needs per forward pass, counted from the layer shapes.
 """
