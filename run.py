@@ -8,6 +8,8 @@ import logging
 import hydra
 from omegaconf import DictConfig
 
+import vgpl  # noqa: F401  (registers the config resolvers, e.g. ${fast_precision:bf16-mixed})
+
 log = logging.getLogger("vgpl")
 
 

@@ -29,3 +29,18 @@ def test_bf16_warning_only_where_a_cpu_would_emulate_it():
     assert precision_warning("bf16-mixed", "gpu", cuda=True, flags=CASCADE_LAKE) is None
     assert precision_warning("32-true", "cpu", cuda=False, flags=CASCADE_LAKE) is None
     assert precision_warning("bf16-mixed", "cpu", cuda=False, flags=frozenset()) is None  # unknown CPU: no guess
+
+
+def test_fast_precision_keeps_bf16_only_where_it_is_fast():
+    from omegaconf import OmegaConf
+
+    from vgpl.hardware import fast_precision
+
+    assert fast_precision("bf16-mixed", cuda=False, flags=CASCADE_LAKE) == "32-true"
+    assert fast_precision("bf16-mixed", cuda=False, flags=ZEN4) == "bf16-mixed"
+    assert fast_precision("bf16-mixed", cuda=True, flags=CASCADE_LAKE) == "bf16-mixed"
+    assert fast_precision("bf16-mixed", cuda=False, flags=frozenset()) == "bf16-mixed"  # unknown CPU: as asked
+    assert fast_precision("16-mixed", cuda=False, flags=CASCADE_LAKE) == "16-mixed"
+    # the resolver the presets use, registered on import
+    resolved = OmegaConf.create({"precision": "${fast_precision:bf16-mixed}"}).precision
+    assert resolved == fast_precision("bf16-mixed")

@@ -42,3 +42,14 @@ def precision_warning(precision: str, accelerator: str, cuda: bool, flags: froze
         return (f"trainer.precision={precision} on a CPU without avx512_bf16 or amx_bf16 ({cpu_info()[0]}): "
                 "bf16 is emulated here and about 2x slower than trainer.precision=32-true")
     return None
+
+
+def fast_precision(preferred: str = "bf16-mixed", cuda: bool | None = None, flags: frozenset[str] | None = None) -> str:
+    """``preferred`` where it runs fast (a GPU, or a CPU with bf16 units or unreadable flags), else
+    ``32-true``. The config resolver ``${fast_precision:bf16-mixed}`` (registered on ``import vgpl``)."""
+    import torch
+
+    cuda = torch.cuda.is_available() if cuda is None else cuda
+    if str(preferred).startswith("bf16") and not cuda and bf16_native(flags) is False:
+        return "32-true"
+    return preferred
