@@ -41,6 +41,6 @@ def test_fast_precision_keeps_bf16_only_where_it_is_fast():
     assert fast_precision("bf16-mixed", cuda=True, flags=CASCADE_LAKE) == "bf16-mixed"
     assert fast_precision("bf16-mixed", cuda=False, flags=frozenset()) == "bf16-mixed"  # unknown CPU: as asked
     assert fast_precision("16-mixed", cuda=False, flags=CASCADE_LAKE) == "16-mixed"
-    # the resolver the presets use, registered on import
+    # the resolver a config can ask for, registered on import vgpl
     resolved = OmegaConf.create({"precision": "${fast_precision:bf16-mixed}"}).precision
     assert resolved == fast_precision("bf16-mixed")

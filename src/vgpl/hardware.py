@@ -34,11 +34,15 @@ def bf16_native(flags: frozenset[str] | None = None) -> bool | None:
     return bool(flags & BF16_FLAGS) if flags else None
 
 
+def bf16_emulated(precision: str, on_cpu: bool, flags: frozenset[str] | None = None) -> bool:
+    """Whether ``precision`` asks for bf16 on a CPU known to lack bf16 units (unknown CPU: False)."""
+    return str(precision).startswith("bf16") and on_cpu and bf16_native(flags) is False
+
+
 def precision_warning(precision: str, accelerator: str, cuda: bool, flags: frozenset[str] | None = None) -> str | None:
     """A warning when ``precision`` asks for bf16 on a CPU that would emulate it, else None.
     ``flags``: the CPU's feature flags (default: this machine's)."""
-    on_cpu = accelerator == "cpu" or (accelerator == "auto" and not cuda)
-    if str(precision).startswith("bf16") and on_cpu and bf16_native(flags) is False:
+    if bf16_emulated(precision, accelerator == "cpu" or (accelerator == "auto" and not cuda), flags):
         return (f"trainer.precision={precision} on a CPU without avx512_bf16 or amx_bf16 ({cpu_info()[0]}): "
                 "bf16 is emulated here and about 2x slower than trainer.precision=32-true")
     return None
@@ -50,6 +54,6 @@ def fast_precision(preferred: str = "bf16-mixed", cuda: bool | None = None, flag
     import torch
 
     cuda = torch.cuda.is_available() if cuda is None else cuda
-    if str(preferred).startswith("bf16") and not cuda and bf16_native(flags) is False:
+    if bf16_emulated(preferred, not cuda, flags):
         return "32-true"
     return preferred
