@@ -1,5 +1,6 @@
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import pytest
@@ -44,6 +45,10 @@ def test_training_writes_checkpoint_config_and_tensorboard(trained):
     assert set(result) >= {"future_mse_x1e4@1", "future_mse_x1e4@5", "future_mse_x1e4@10"}
     assert 0 < result["future_mse_x1e4@1"] < result["future_mse_x1e4@10"]
     assert result["max_degree"] > 0
+    breakdown = json.loads((tmp / "run/metrics.json").read_text())["breakdown@10"]  # where the T+10 error comes from
+    assert breakdown["mse"] == pytest.approx(result["future_mse_x1e4@10"], rel=1e-5)
+    assert len(breakdown["instance_mse"]) == 3 and 0 <= breakdown["centroid_share"] <= 1
+    assert sum(b["rollouts"] for b in breakdown["by_gravity"]) == len(load_split(tmp / "data", "rigid_fall", "test").params)
 
 
 def test_tensorboard_has_test_metrics_and_a_rollout_video(trained):

@@ -14,6 +14,7 @@ from omegaconf import DictConfig
 from vgpl.checkpoint import CheckpointError, load_stage, scene_of
 from vgpl.data.schema import DatasetError
 from vgpl.data.trajectories import Rollouts, TrajectoryDataModule, ground_truth_grouping, load_split
+from vgpl.eval.error_breakdown import error_breakdown
 from vgpl.eval.rollout import future_mse, rollout
 from vgpl.eval.preview import write_gif
 from vgpl.eval.tensorboard_media import add_gif, rollout_video
@@ -29,7 +30,9 @@ def evaluate_rollouts(
     model: DynamicsPrior, scene: Scene, test: Rollouts, observed: int, n_steps: int, max_rollouts: int | None = None, start_frame: int = 0
 ) -> tuple[dict, torch.Tensor, torch.Tensor]:
     """Future MSE x 1e4 on the test split ``test``: observe ``observed`` frames from ``start_frame``
-    on, roll ``n_steps`` forward, on its first ``max_rollouts`` rollouts.
+    on, roll ``n_steps`` forward, on its first ``max_rollouts`` rollouts. ``metrics`` also holds
+    ``breakdown@<n_steps>``: where the error at the last predicted frame comes from (per instance,
+    centroid share, by parameter; ``vgpl.eval.error_breakdown``).
 
     Returns: (metrics, predictions [R, n_steps, N, 3], ground truth [R, n_steps, N, 3]).
     """
@@ -47,7 +50,8 @@ def evaluate_rollouts(
     with torch.no_grad():
         pred = rollout(model, positions, grouping, rigidness, test.params[:n], planes, torch.as_tensor(scene.kinematic), n_steps)
     truth = positions[:, h:]
-    return future_mse(pred, truth), pred, truth
+    breakdown = error_breakdown(pred, truth, torch.as_tensor(scene.instance), test.params[:n], n_steps, list(scene.param_names))
+    return future_mse(pred, truth) | {f"breakdown@{n_steps}": breakdown}, pred, truth
 
 
 def init_weights(model: DynamicsPrior, path: str | Path, scene: Scene) -> None:
@@ -87,12 +91,13 @@ def train_dynamics(cfg: DictConfig) -> dict:
     )
     writer = trainer.logger.experiment
     for key, value in metrics.items():
-        writer.add_scalar(f"test/{key}", value, trainer.global_step)
+        if not key.startswith("breakdown"):
+            writer.add_scalar(f"test/{key}", value, trainer.global_step)
     add_gif(writer, "test/rollout_truth_vs_prediction", rollout_video(scene.camera, scene.instance, truth[0], pred[0]), trainer.global_step)
     writer.flush()
     result = {"env": scene.name, "checkpoint": str(last), "max_degree": model.max_degree_seen, **metrics}
     (out / "metrics.json").write_text(json.dumps(result, indent=1))
-    log.info("test rollouts: %s", metrics)
+    log.info("test rollouts: %s", {k: v for k, v in metrics.items() if not k.startswith("breakdown")})
     return result
 
 
