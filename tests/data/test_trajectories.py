@@ -36,6 +36,20 @@ def test_windows_cover_every_valid_frame(dataset):
     assert torch.equal(late[0]["positions"][0], train.positions[0, 5])
 
 
+def test_window_span_keeps_training_windows_early_and_validation_whole(dataset):
+    root, scene = dataset
+    train = load_split(root, "mass_rope", "train")
+    early = TrajectoryWindows(train, scene, history=4, horizon=2, start_frame=1, span=8)  # frames 1..8
+    assert len(early) == 4 * (8 - 4 - 2 + 1)
+    assert max(t for _, t in early.index) + 2 == 8  # the last target is frame 8, the span's last
+    dm = TrajectoryDataModule(str(root), scene, horizon=1, batch_size=1, train_span=6)
+    dm.setup()
+    assert len(dm.train_dataloader().dataset) == 4 * (6 - 4 - 1 + 1)
+    assert len(dm.val_dataloader().dataset) == 1 * (12 - 4 - 1 + 1)  # validation keeps every window
+    with pytest.raises(ValueError, match="window_span=5 \\(frames 0 to 4\\) is too short for history=4 \\+ horizon=2"):
+        TrajectoryWindows(train, scene, history=4, horizon=2, span=5)
+
+
 def test_statistics_come_from_the_training_split_only(dataset):
     root, scene = dataset
     dm = TrajectoryDataModule(str(root), scene)

@@ -110,15 +110,18 @@ def ground_truth_grouping(rollouts: Rollouts) -> torch.Tensor:
 
 
 class TrajectoryWindows(Dataset):
-    """Every window (rollout r, frame t) with ``history`` frames up to t and ``horizon`` after."""
+    """Every window (rollout r, frame t) with ``history`` frames up to t and ``horizon`` after,
+    inside frames [start_frame, start_frame + span) when ``span`` is given."""
 
-    def __init__(self, rollouts: Rollouts, scene: Scene, history: int = 4, horizon: int = 1, start_frame: int = 0) -> None:
+    def __init__(self, rollouts: Rollouts, scene: Scene, history: int = 4, horizon: int = 1, start_frame: int = 0,
+                 span: int | None = None) -> None:
         self.r, self.history, self.horizon = rollouts, history, horizon
         n_rollouts, n_frames = rollouts.positions.shape[:2]
         first = start_frame + history - 1
-        last = n_frames - horizon - 1
+        last = n_frames - horizon - 1 if span is None else min(n_frames, start_frame + span) - horizon - 1
         if last < first:
-            raise ValueError(f"rollouts of {n_frames} frames are too short for history={history} + horizon={horizon}")
+            within = f"rollouts of {n_frames} frames are" if span is None else f"window_span={span} (frames {start_frame} to {start_frame + span - 1}) is"
+            raise ValueError(f"{within} too short for history={history} + horizon={horizon}")
         self.index = [(r, t) for r in range(n_rollouts) for t in range(first, last + 1)]
         self.planes = scene.planes_at(rollouts.actions)  # [R, T, K, 4]
         self.grouping = ground_truth_grouping(rollouts)
@@ -143,8 +146,10 @@ class TrajectoryWindows(Dataset):
 class TrajectoryDataModule(L.LightningDataModule):
     """Train/test windows of one environment's HDF5 dataset; ``stats`` from the training split."""
 
-    def __init__(self, root: str, scene: Scene, history: int = 4, horizon: int = 1, batch_size: int = 4, num_workers: int = 0, start_frame: int = 0) -> None:
+    def __init__(self, root: str, scene: Scene, history: int = 4, horizon: int = 1, batch_size: int = 4, num_workers: int = 0, start_frame: int = 0,
+                 train_span: int | None = None) -> None:
         super().__init__()
+        self.train_span = train_span  # training windows only within this many frames from start_frame (validation: all)
         self.root, self.scene = root, scene
         self.history, self.horizon, self.batch_size, self.num_workers, self.start_frame = history, horizon, batch_size, num_workers, start_frame
         self.train: Rollouts | None = None
@@ -160,7 +165,7 @@ class TrajectoryDataModule(L.LightningDataModule):
             self.stats = NormStats.from_rollouts(self.train, torch.as_tensor(self.scene.kinematic))
 
     def _loader(self, rollouts: Rollouts, shuffle: bool) -> DataLoader:
-        ds = TrajectoryWindows(rollouts, self.scene, self.history, self.horizon, self.start_frame)
+        ds = TrajectoryWindows(rollouts, self.scene, self.history, self.horizon, self.start_frame, self.train_span if shuffle else None)
         return DataLoader(ds, batch_size=self.batch_size, shuffle=shuffle, num_workers=self.num_workers, drop_last=shuffle)
 
     def train_dataloader(self) -> DataLoader:

@@ -73,7 +73,8 @@ def train_dynamics(cfg: DictConfig) -> dict:
     out = Path(cfg.paths.output_dir)
     out.mkdir(parents=True, exist_ok=True)
     spec = cfg.model.dynamics
-    dm = TrajectoryDataModule(cfg.data.root, scene, history=spec.history, horizon=spec.net.get("rollout_steps", 1), batch_size=spec.batch_size, start_frame=cfg.env.get("start_frame", 0))
+    dm = TrajectoryDataModule(cfg.data.root, scene, history=spec.history, horizon=spec.net.get("rollout_steps", 1), batch_size=spec.batch_size, start_frame=cfg.env.get("start_frame", 0),
+                             train_span=spec.get("window_span"))
     dm.setup()
     model: DynamicsPrior = hydra.utils.instantiate(
         spec.net, _convert_="all", param_low=scene.param_low.tolist(), param_high=scene.param_high.tolist(),
