@@ -2,7 +2,9 @@
 ``eps`` (a random direction per instance), simulate again with the same engine, and measure the
 future MSE x 1e4 between the two trajectories at the evaluation's horizons. If a tiny shift grew
 as fast as a learned model's error, no model could beat that error; if it stays small, the model's
-error is its own.
+error is its own. The shift is applied at frame 0 and frames are counted from there, as RigidFall's
+evaluation does; envs whose evaluation drops early frames (``start_frame``, MassRope) are not
+modelled that way yet.
 
     python -m vgpl.eval.sensitivity rigid_fall   # JSON on stdout (100 rollouts, eps 1e-5 .. 1e-2)
 """
