@@ -6,6 +6,8 @@ from __future__ import annotations
 
 import torch
 
+from vgpl.nn.rigid import soft_centroids
+
 
 def error_breakdown(
     pred: torch.Tensor, truth: torch.Tensor, instance: torch.Tensor, params: torch.Tensor, step: int,
@@ -22,13 +24,13 @@ def error_breakdown(
     that is each instance's centroid error: per instance the error splits exactly into its mean and
     the deviations from it), and ``by_<param>`` (per bin: its range and the mean MSE in it, None for an empty bin so the JSON stays strict).
     """
-    d2 = (pred[:, step - 1] - truth[:, step - 1]) ** 2  # [R, N, 3]
+    diff = pred[:, step - 1] - truth[:, step - 1]  # [R, N, 3]
+    d2 = diff**2
     per_rollout = d2.mean((1, 2)) * 1e4
     instance = torch.as_tensor(instance, dtype=torch.long)
     m = int(instance.max()) + 1
-    counts = torch.bincount(instance, minlength=m).to(d2)
-    diff = pred[:, step - 1] - truth[:, step - 1]
-    centroid = torch.zeros(diff.shape[0], m, 3, dtype=diff.dtype).index_add_(1, instance, diff) / counts[None, :, None].clamp(min=1)
+    one_hot = torch.nn.functional.one_hot(instance, m).to(diff).expand(diff.shape[0], -1, -1)  # [R, N, M]
+    centroid = soft_centroids(diff, one_hot)  # [R, M, 3], each instance's mean error
     worst = per_rollout.sort(descending=True).values[: max(1, len(per_rollout) // 10)]
     out = {
         "step": step,

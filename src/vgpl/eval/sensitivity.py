@@ -36,6 +36,7 @@ def engine_sensitivity(scene: Scene, n_rollouts: int, eps: list[float], history:
     movable = ~np.asarray(scene.kinematic)
     out = {}
     for e in eps:
+        # the same directions for every eps, so the rows differ only in the shift's size
         directions = np.random.default_rng(seed + 1).normal(size=(n_rollouts, scene.n_instances, 3))
         shifts = e * directions / np.linalg.norm(directions, axis=-1, keepdims=True)
         perturbed = [

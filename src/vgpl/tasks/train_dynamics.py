@@ -91,14 +91,14 @@ def train_dynamics(cfg: DictConfig) -> dict:
         cfg.env.get("start_frame", 0),
     )
     writer = trainer.logger.experiment
-    for key, value in metrics.items():
-        if not key.startswith("breakdown"):
-            writer.add_scalar(f"test/{key}", value, trainer.global_step)
+    scalars = {k: v for k, v in metrics.items() if not isinstance(v, dict)}  # breakdown@<n> goes to metrics.json only
+    for key, value in scalars.items():
+        writer.add_scalar(f"test/{key}", value, trainer.global_step)
     add_gif(writer, "test/rollout_truth_vs_prediction", rollout_video(scene.camera, scene.instance, truth[0], pred[0]), trainer.global_step)
     writer.flush()
     result = {"env": scene.name, "checkpoint": str(last), "max_degree": model.max_degree_seen, **metrics}
     (out / "metrics.json").write_text(json.dumps(result, indent=1))
-    log.info("test rollouts: %s", {k: v for k, v in metrics.items() if not k.startswith("breakdown")})
+    log.info("test rollouts: %s", scalars)
     return result
 
 
