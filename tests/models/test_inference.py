@@ -87,6 +87,16 @@ def test_ablation_switches():
     assert ((drawn >= -15) & (drawn <= -5)).all() and not torch.allclose(drawn, full["params"])
 
 
+def test_rigidness_alone_equals_the_full_inference_s():
+    torch.manual_seed(0)
+    _, inf = _modules()
+    assert inf.param_encoder is not None  # the path that skips the second encoder
+    prop, logits = torch.rand(3, 6, 24, 3), torch.randn(3, 6, 24, 2)
+    kin = torch.zeros(24, dtype=torch.bool)
+    with torch.no_grad():
+        assert torch.equal(inf.rigidness(prop, logits, kin), inf.infer(prop, logits, kin)["rigidness"])
+
+
 @pytest.mark.parametrize("name", ABLATIONS)
 def test_ablation_flags_agree_with_the_config_group(name):
     assert OmegaConf.load(REPO / f"conf/ablation/{name}.yaml") == ablation_config(name)

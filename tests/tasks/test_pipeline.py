@@ -23,7 +23,8 @@ TINY = [
     "trainer.enable_progress_bar=false", "trainer.limit_val_batches=2",
     "model.dynamics.net.width=48", "model.dynamics.batch_size=16", "model.dynamics.trainer.max_steps=250", "model.dynamics.trainer.val_check_interval=125",
     "model.visual.net.channels=[8,16,16,32]", "model.visual.net.hidden=256", "model.visual.trainer.max_steps=300", "model.visual.trainer.val_check_interval=150",
-    "model.inference.net.width=32", "model.inference.window_stride=1", "model.inference.net.max_neighbors=12", "model.inference.trainer.max_steps=600", "model.inference.trainer.val_check_interval=300",
+    "model.dynamics.trainer.max_time=null", "model.visual.trainer.max_time=null", "model.inference.trainer.max_time=null",  # steps, not the clock
+    "model.inference.batch_size=4", "model.inference.net.width=32", "model.inference.window_stride=1", "model.inference.net.max_neighbors=12", "model.inference.trainer.max_steps=600", "model.inference.trainer.val_check_interval=300",
     "model.densephysnet.net.channels=8", "model.densephysnet.net.latent=8", "model.densephysnet.trainer.max_steps=100",
     "model.densephysnet.trainer.val_check_interval=50", "model.densephysnet.window_stride=5",
     "eval.n_steps=10", "eval.max_observed=12",
@@ -59,6 +60,10 @@ def test_every_ablation_and_the_baseline_are_in_the_report(tiny):
     text = (tmp / "run/report.md").read_text()
     for row in ("| VGPL |", "| VGPL w/o rigidness |", "| VGPL w/o refinement |", "| VGPL w/o parameter estimation |", "| DensePhysNet |"):
         assert row in text
+    for line in ("- train_dynamics: 250 of 250 steps", "- train_visual: 300 of 300 steps", "- train_inference/full: 600 of 600 steps",
+                 "- train_inference/no_rigidness: 600 of 600 steps", "- train_baseline: 100 of 100 steps"):
+        assert line in text  # every training ran to max_steps, and the report says so
+    assert "stopped by trainer.max_time" not in text
     no_params = next(r for r in result["records"] if r["ablation"] == "no_params")
     full = next(r for r in result["records"] if r["method"] == "vgpl" and r["ablation"] == "full")
     assert no_params["param_mae_pct"] != full["param_mae_pct"]

@@ -97,7 +97,8 @@ def evaluate_grounding(dynamics, visual, inference, scene, test: Rollouts, ablat
         for t in range(1, t_max + 1):
             # all 100 videos at T = 20 at once made 17M proposal edges, 10 GB per activation, and
             # ran memory-bound for over half an hour on 2 cores
-            q = _infer_in_chunks(inference, proposals[curve_videos, :t], logits[curve_videos, :t], kinematic, chunk)["rigidness"]
+            p, lg = proposals[curve_videos, :t], logits[curve_videos, :t]
+            q = torch.cat([inference.rigidness(p[i : i + chunk], lg[i : i + chunk], kinematic) for i in range(0, len(p), chunk)])
             probs.append(correct_rigidness_prob(q, test.rigid))  # [R', M]
         probs = torch.stack(probs, -1)  # [R', M, T]
         for name in dict.fromkeys(types):

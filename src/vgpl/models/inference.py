@@ -106,21 +106,36 @@ class InferenceModule(NormalisationBuffers, L.LightningModule):
     def forward(self, proposals: torch.Tensor, grouping: torch.Tensor, kinematic: torch.Tensor) -> dict:
         """proposals [B, T, N, 3] (metres), grouping [B, N, M] (probabilities), kinematic [N] ->
         refine [B, T, N, 3] (metres), rigidness [B, M] in (0, 1), params [B, P] in (-1, 1)."""
+        nodes = self._nodes(proposals, grouping, kinematic)
+        h = self.encoder(nodes, proposals, grouping, self.pos_std)  # [B, T, N, 2W]
+        refine = self.refine_head(h) * self.disp_std
+        hp = h if self.param_encoder is None else self.param_encoder(nodes, proposals, grouping, self.pos_std)
+        params = torch.tanh(self.param_head(hp.mean((1, 2))))
+        return {"refine": refine, "rigidness": self._rigidness(h, grouping), "params": params}
+
+    def rigidness(self, proposals: torch.Tensor, logits: torch.Tensor, kinematic: torch.Tensor) -> torch.Tensor:
+        """Only Q [B, M], as ``infer`` gives it: without the refinement head and the parameter
+        encoder (the rigidness curve runs this for every T = 1 .. 20)."""
+        grouping = torch.softmax(logits, -1).mean(1)
+        h = self.encoder(self._nodes(proposals, grouping, kinematic), proposals, grouping, self.pos_std)
+        return self._rigidness(h, grouping)
+
+    def _nodes(self, proposals: torch.Tensor, grouping: torch.Tensor, kinematic: torch.Tensor) -> torch.Tensor:
+        """Encoder input [B, T, N, 3 + 3 + M + 1]: normalised position, displacement from the
+        previous frame (zero in the first), grouping, kinematic flag."""
         b, t, n, _ = proposals.shape
         disp = torch.cat([torch.zeros_like(proposals[:, :1]), proposals[:, 1:] - proposals[:, :-1]], 1)
         disp = torch.where(torch.arange(t, device=proposals.device)[None, :, None, None] > 0, (disp - self.disp_mean) / self.disp_std, disp)
-        nodes = torch.cat([
+        return torch.cat([
             (proposals - self.pos_mean) / self.pos_std, disp, grouping[:, None].expand(b, t, n, -1),
             kinematic[None, None, :, None].expand(b, t, n, 1).float(),
         ], -1)
-        h = self.encoder(nodes, proposals, grouping, self.pos_std)  # [B, T, N, 2W]
-        refine = self.refine_head(h) * self.disp_std
+
+    def _rigidness(self, h: torch.Tensor, grouping: torch.Tensor) -> torch.Tensor:
+        """Encoder output [B, T, N, 2W] pooled per instance (grouping [B, N, M]) -> Q [B, M]."""
         weights = grouping / grouping.sum(1, keepdim=True).clamp_min(1e-8)  # [B, N, M]
         per_instance = torch.einsum("bnm,bnw->bmw", weights, h.mean(1))
-        rigidness = torch.sigmoid(self.rigid_head(per_instance).squeeze(-1))
-        hp = h if self.param_encoder is None else self.param_encoder(nodes, proposals, grouping, self.pos_std)
-        params = torch.tanh(self.param_head(hp.mean((1, 2))))
-        return {"refine": refine, "rigidness": rigidness, "params": params}
+        return torch.sigmoid(self.rigid_head(per_instance).squeeze(-1))
 
     def infer(self, proposals, logits, kinematic, refinement: bool = True, rigidness: bool | None = None,
               params: bool = True, generator: torch.Generator | None = None) -> dict:

@@ -20,7 +20,7 @@ from vgpl.data.trajectories import load_split
 from vgpl.eval.linear_probe import Ridge
 from vgpl.eval.metrics import param_error_pct
 from vgpl.models.densephysnet import DensePhysNet
-from vgpl.tasks.stage import fit, setup_run, stage_checkpoint
+from vgpl.tasks.stage import fit, setup_run, stage_checkpoint, stopping
 
 log = logging.getLogger(__name__)
 
@@ -90,7 +90,7 @@ def train_baseline(cfg: DictConfig) -> dict:
     x, y = features(model, probe)
     ridge = Ridge.fit(x, y, spec.ridge_alpha)
     torch.save(ridge.state_dict(), last.parent / "ridge.pt")
-    result = {"env": scene.name, "checkpoint": str(last), **flow_quality(model, test)}
+    result = {"env": scene.name, "checkpoint": str(last), **stopping(trainer), **flow_quality(model, test)}
     out = Path(cfg.paths.output_dir)
     out.mkdir(parents=True, exist_ok=True)
     (out / "metrics.json").write_text(json.dumps(result, indent=1))

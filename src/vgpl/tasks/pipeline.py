@@ -56,23 +56,37 @@ def pipeline(cfg: DictConfig) -> dict:
         times[step] = round(time.perf_counter() - start, 1)
         return result
 
+    trained: dict[str, dict] = {}  # step -> its training's end (steps, max_steps, stopped_by)
     run("generate", generate)
-    run("train_dynamics", train_dynamics)
+    trained["train_dynamics"] = run("train_dynamics", train_dynamics)
     identifiability = run("identifiability", check_identifiability)
-    run("train_visual", train_visual)
+    trained["train_visual"] = run("train_visual", train_visual)
     run("export_proposals", export_proposals)
     variants = ["full"] + (["no_rigidness"] if "no_rigidness" in cfg.task.ablations else [])
     for v in variants:
-        run(f"train_inference/{v}", train_inference, ablation=ablation_config(v))
+        trained[f"train_inference/{v}"] = run(f"train_inference/{v}", train_inference, ablation=ablation_config(v))
     baseline = bool(cfg.task.get("baseline", False))
     if baseline:
         from vgpl.tasks.baseline import train_baseline
 
-        run("train_baseline", train_baseline)
+        trained["train_baseline"] = run("train_baseline", train_baseline)
     records = [run(f"evaluate/{a}", evaluate, ablation=ablation_config(a)) for a in cfg.task.ablations]
     if baseline:
         records.append(run("evaluate/densephysnet", evaluate, model={**OmegaConf.to_container(cfg.model, resolve=True), "name": "densephysnet"}))
-    text = write_tables(records, out, "" if identifiability.get("skipped") else identifiability_summary(identifiability))
+    notes = ("" if identifiability.get("skipped") else identifiability_summary(identifiability)) + training_summary(trained, times)
+    text = write_tables(records, out, notes)
     print(text)
     log.info("pipeline step times (s): %s", times)
     return {"env": cfg.env.name, "identifiability": identifiability, "records": records, "times_s": times, "report": str(out / "report.md")}
+
+
+def training_summary(trained: dict[str, dict], times: dict[str, float]) -> str:
+    """Markdown lines: each training step's steps run of those asked and its time, flagging those
+    that trainer.max_time cut short (their numbers depend on the machine's speed)."""
+    lines = ["", "Training steps run (of max_steps) and wall time:", ""]
+    for step, result in trained.items():
+        if "steps" not in result:  # DDP ranks other than 0 return no metrics
+            continue
+        cut = " **stopped by trainer.max_time**" if result["stopped_by"] == "max_time" else ""
+        lines.append(f"- {step}: {result['steps']} of {result['max_steps']} steps, {times.get(step, float('nan')):.0f} s{cut}")
+    return "\n".join(lines) + "\n"

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import lightning as L
 import torch
-from lightning.pytorch.callbacks import ModelCheckpoint
+from lightning.pytorch.callbacks import ModelCheckpoint, Timer
 from lightning.pytorch.loggers import TensorBoardLogger
 from omegaconf import DictConfig, OmegaConf
 
@@ -63,4 +63,23 @@ def fit(cfg: DictConfig, stage: str, stage_cfg: DictConfig, model: L.LightningMo
         ckpt_path = None
     trainer.fit(model, datamodule, ckpt_path=ckpt_path)
     trainer.save_checkpoint(folder / "last.ckpt")  # also when validation never ran (tiny runs)
+    ended = stopping(trainer)
+    if ended["stopped_by"] == "max_time":
+        log.warning("%s: trainer.max_time=%s stopped training after %d of %d steps; its results depend on this machine's speed",
+                    stage, kwargs.get("max_time"), ended["steps"], ended["max_steps"])
     return trainer, folder / "last.ckpt"
+
+
+def stopping(trainer: L.Trainer) -> dict:
+    """How a fit ended: the steps run, the max_steps asked for, and the limit that stopped it
+    (``max_steps``, ``max_time`` or ``max_epochs``). A fit cut by max_time ran fewer steps than
+    asked, so its numbers depend on the machine's speed."""
+    steps, max_steps = trainer.global_step, trainer.max_steps
+    timer = next((c for c in trainer.callbacks if isinstance(c, Timer)), None)
+    if 0 <= max_steps <= steps:
+        by = "max_steps"
+    elif timer is not None and timer.time_remaining() is not None and timer.time_remaining() <= 0.0:
+        by = "max_time"
+    else:
+        by = "max_epochs"
+    return {"steps": steps, "max_steps": max_steps, "stopped_by": by}

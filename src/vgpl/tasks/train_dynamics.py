@@ -21,7 +21,7 @@ from vgpl.eval.tensorboard_media import add_gif, rollout_video
 from vgpl.models.dynamics_prior import DynamicsPrior
 from vgpl.sim.scene import Scene
 from vgpl.tasks.identifiability import sweep_metrics
-from vgpl.tasks.stage import fit, setup_run
+from vgpl.tasks.stage import fit, setup_run, stopping
 
 log = logging.getLogger(__name__)
 
@@ -96,7 +96,7 @@ def train_dynamics(cfg: DictConfig) -> dict:
         writer.add_scalar(f"test/{key}", value, trainer.global_step)
     add_gif(writer, "test/rollout_truth_vs_prediction", rollout_video(scene.camera, scene.instance, truth[0], pred[0]), trainer.global_step)
     writer.flush()
-    result = {"env": scene.name, "checkpoint": str(last), "max_degree": model.max_degree_seen, **metrics}
+    result = {"env": scene.name, "checkpoint": str(last), **stopping(trainer), "max_degree": model.max_degree_seen, **metrics}
     (out / "metrics.json").write_text(json.dumps(result, indent=1))
     log.info("test rollouts: %s", scalars)
     return result

@@ -15,7 +15,7 @@ from vgpl.checkpoint import load_stage, scene_of
 from vgpl.data.grounding import GroundingDataModule
 from vgpl.models.dynamics_prior import DynamicsPrior
 from vgpl.models.inference import InferenceModule
-from vgpl.tasks.stage import fit, setup_run, stage_checkpoint
+from vgpl.tasks.stage import fit, setup_run, stage_checkpoint, stopping
 
 log = logging.getLogger(__name__)
 
@@ -42,7 +42,7 @@ def train_inference(cfg: DictConfig) -> dict:
     trainer, last = fit(cfg, stage, spec, model, dm)
     if not trainer.is_global_zero:  # under DDP rank 0 alone evaluates and writes
         return {"env": scene.name, "stage": stage, "checkpoint": str(last)}
-    result = {"env": scene.name, "stage": stage, "checkpoint": str(last),
+    result = {"env": scene.name, "stage": stage, "checkpoint": str(last), **stopping(trainer),
               **{k: float(v) for k, v in trainer.callback_metrics.items() if k.startswith("val/")}}
     out = Path(cfg.paths.output_dir)
     out.mkdir(parents=True, exist_ok=True)

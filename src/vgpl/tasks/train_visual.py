@@ -17,7 +17,7 @@ from vgpl.data.proposals import Proposals, propose_videos, write_proposals
 from vgpl.data.shard import read_first_rollouts
 from vgpl.data.video import VideoDataModule
 from vgpl.models.visual_prior import VisualPrior
-from vgpl.tasks.stage import fit, setup_run, stage_checkpoint
+from vgpl.tasks.stage import fit, setup_run, stage_checkpoint, stopping
 
 log = logging.getLogger(__name__)
 
@@ -43,7 +43,7 @@ def train_visual(cfg: DictConfig) -> dict:
             errors.append(((pos - batch["positions"]) ** 2).mean((1, 2, 3)))
             correct += int((logits.argmax(-1) == batch["instance"][:, None]).sum())
             count += logits.shape[0] * logits.shape[1] * logits.shape[2]
-    result = {"env": scene.name, "checkpoint": str(last), "visual_mse_x1e4": float(torch.cat(errors).mean() * 1e4), "grouping_accuracy": correct / max(count, 1)}
+    result = {"env": scene.name, "checkpoint": str(last), **stopping(trainer), "visual_mse_x1e4": float(torch.cat(errors).mean() * 1e4), "grouping_accuracy": correct / max(count, 1)}
     out = Path(cfg.paths.output_dir)
     out.mkdir(parents=True, exist_ok=True)
     (out / "metrics.json").write_text(json.dumps(result, indent=1))

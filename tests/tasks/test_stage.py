@@ -1,0 +1,59 @@
+"""How a stage's training ended is recorded, and the pipeline's report flags the stages that
+trainer.max_time cut short (their numbers depend on the machine's speed)."""
+
+from __future__ import annotations
+
+import time
+
+import lightning as L
+import torch
+from torch.utils.data import DataLoader, TensorDataset
+
+from vgpl.tasks.pipeline import training_summary
+from vgpl.tasks.stage import stopping
+
+
+class SlowRegression(L.LightningModule):
+    """A linear fit whose every step sleeps ``delay`` seconds (a stand-in for a slow machine)."""
+
+    def __init__(self, delay: float) -> None:
+        super().__init__()
+        self.delay = delay
+        self.layer = torch.nn.Linear(2, 1)
+
+    def training_step(self, batch, batch_idx):
+        time.sleep(self.delay)
+        x, y = batch
+        return torch.nn.functional.mse_loss(self.layer(x), y)
+
+    def configure_optimizers(self):
+        return torch.optim.SGD(self.parameters(), lr=0.1)
+
+
+def fit(delay: float, **limits) -> L.Trainer:
+    data = DataLoader(TensorDataset(torch.randn(64, 2), torch.randn(64, 1)), batch_size=4)
+    trainer = L.Trainer(logger=False, enable_checkpointing=False, enable_progress_bar=False, enable_model_summary=False, **limits)
+    trainer.fit(SlowRegression(delay), data)
+    return trainer
+
+
+def test_a_fit_that_reaches_max_steps_says_so():
+    assert stopping(fit(0.0, max_steps=5)) == {"steps": 5, "max_steps": 5, "stopped_by": "max_steps"}
+
+
+def test_a_fit_cut_by_max_time_says_how_many_steps_it_ran():
+    ended = stopping(fit(0.25, max_steps=1000, max_time={"seconds": 1}))
+    assert ended["stopped_by"] == "max_time" and ended["max_steps"] == 1000
+    assert 2 <= ended["steps"] <= 6  # about 1 s of 0.25 s steps
+
+
+def test_a_fit_that_runs_out_of_epochs_says_so():
+    assert stopping(fit(0.0, max_epochs=1)) == {"steps": 16, "max_steps": -1, "stopped_by": "max_epochs"}
+
+
+def test_the_report_lists_every_training_and_flags_the_time_capped_one():
+    trained = {"train_dynamics": {"steps": 1200, "max_steps": 1200, "stopped_by": "max_steps"},
+               "train_inference/full": {"steps": 97, "max_steps": 170, "stopped_by": "max_time"}}
+    text = training_summary(trained, {"train_dynamics": 203.4, "train_inference/full": 120.0})
+    assert "- train_dynamics: 1200 of 1200 steps, 203 s\n" in text
+    assert "- train_inference/full: 97 of 170 steps, 120 s **stopped by trainer.max_time**" in text
