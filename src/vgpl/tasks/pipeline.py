@@ -3,13 +3,15 @@
 generate -> train_dynamics -> identifiability (can the prior's rollout loss find P? warn or stop)
 -> train_visual -> export_proposals -> train_inference (full and
 no_rigidness) -> [train_baseline] -> evaluate (every ablation [and the baseline]) -> report.
-Each step writes into ``<run dir>/<step>/``; checkpoints go to the stable ``paths.ckpt_dir``,
+Each step writes into ``<run dir>/<step>/`` (and ``pipeline.json``: each step's seconds, each
+training's steps run); checkpoints go to the stable ``paths.ckpt_dir``,
 so ``ckpt_path=last`` resumes a killed pipeline (finished shards are skipped, training resumes).
 """
 
 from __future__ import annotations
 
 import gc
+import json
 import logging
 import time
 from pathlib import Path
@@ -77,6 +79,8 @@ def pipeline(cfg: DictConfig) -> dict:
     text = write_tables(records, out, notes)
     print(text)
     log.info("pipeline step times (s): %s", times)
+    ends = {step: {k: r[k] for k in ("steps", "max_steps", "stopped_by")} for step, r in trained.items() if "steps" in r}
+    (out / "pipeline.json").write_text(json.dumps({"env": cfg.env.name, "precision": str(cfg.trainer.precision), "times_s": times, "trained": ends}, indent=1))
     return {"env": cfg.env.name, "identifiability": identifiability, "records": records, "times_s": times, "report": str(out / "report.md")}
 
 

@@ -1,0 +1,51 @@
+"""The main job (`python run.py`, the quick pipeline) from nothing: wall time, each step's
+seconds and each training's steps run of those asked, with the machine described.
+
+    python benchmarks/main_job.py                 # one JSON line on stdout (about 9 minutes)
+    python benchmarks/main_job.py --keep /tmp/mj  # keep its data, checkpoints and run folder
+
+It runs `run.py` in a fresh root folder (data, checkpoints and outputs under it), so nothing
+generated or trained before is reused, then reads the run's ``pipeline.json``. Extra arguments
+after ``--`` go to run.py as Hydra overrides.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from machine import describe  # noqa: E402
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--keep", help="root folder to run in and keep (default: a temporary one, removed after)")
+    parser.add_argument("overrides", nargs="*", help="Hydra overrides for run.py (after --)")
+    args = parser.parse_args()
+    root = Path(args.keep) if args.keep else Path(tempfile.mkdtemp(prefix="vgpl_main_job_"))
+    if args.keep and root.exists() and any(root.iterdir()):
+        parser.error(f"--keep {root}: not empty; the main job is measured from nothing")
+    run_dir = root / "run"
+    command = [sys.executable, str(REPO / "run.py"), f"paths.root_dir={root}", f"hydra.run.dir={run_dir}", *args.overrides]
+    start = time.perf_counter()
+    proc = subprocess.run(command, cwd=REPO, capture_output=True, text=True)
+    wall = time.perf_counter() - start
+    if proc.returncode != 0:
+        sys.exit(f"main job failed ({' '.join(command)}):\n{proc.stderr[-3000:]}")
+    summary = json.loads((run_dir / "pipeline.json").read_text())
+    print(json.dumps({"benchmark": "main_job", "wall_s": round(wall, 1), "overrides": args.overrides, **summary, "machine": describe()}))
+    if not args.keep:
+        shutil.rmtree(root)
+
+
+if __name__ == "__main__":
+    main()
