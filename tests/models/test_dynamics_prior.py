@@ -6,7 +6,7 @@ import torch
 
 from vgpl.eval.rollout import future_mse, rollout
 from vgpl.models.dynamics_prior import DynamicsPrior
-from vgpl.nn.rigid import quaternion_to_matrix, rigid_displacement
+from vgpl.nn.rigid import momentum_projection, quaternion_to_matrix, rigid_displacement
 from vgpl.sim.envs import make_scene
 
 
@@ -18,9 +18,9 @@ def inputs(env="rigid_fall", batch=2, steps=60, seed=0):
     return scene, tr, grouping.clone(), rigidness.clone(), scene.planes_at(tr.actions), torch.as_tensor(scene.kinematic)
 
 
-def model_for(scene, radius=0.08, seed=0):
+def model_for(scene, radius=0.08, seed=0, rigid_head="pooled"):
     torch.manual_seed(seed)
-    return DynamicsPrior(scene.param_low.tolist(), scene.param_high.tolist(), scene.n_instances, radius=radius)
+    return DynamicsPrior(scene.param_low.tolist(), scene.param_high.tolist(), scene.n_instances, radius=radius, rigid_head=rigid_head)
 
 
 class Oracle(torch.nn.Module):
@@ -51,9 +51,10 @@ def test_future_mse_is_the_papers_scale():
     assert future_mse(a, b)["future_mse_x1e4@10"] == pytest.approx(1.0)
 
 
-def test_rigid_instances_stay_rigid_over_a_50_step_rollout():
+@pytest.mark.parametrize("rigid_head", ["pooled", "projected"])
+def test_rigid_instances_stay_rigid_over_a_50_step_rollout(rigid_head):
     scene, tr, g, q, planes, kin = inputs("rigid_fall", steps=60)
-    model = model_for(scene).eval()
+    model = model_for(scene, rigid_head=rigid_head).eval()
     with torch.no_grad():
         pred = rollout(model, tr.positions[:, :4], g, q, tr.params, planes, kin, 50)
     inst = torch.as_tensor(scene.instance)
@@ -69,9 +70,10 @@ def test_rigid_instances_stay_rigid_over_a_50_step_rollout():
     assert float((pred[:, -1] - start).abs().max()) > 1e-3  # it did move
 
 
-def test_predictions_are_equivariant_to_particle_order():
+@pytest.mark.parametrize("rigid_head", ["pooled", "projected"])
+def test_predictions_are_equivariant_to_particle_order(rigid_head):
     scene, tr, g, q, planes, kin = inputs("fluid_cube", steps=10)
-    model = model_for(scene).eval()
+    model = model_for(scene, rigid_head=rigid_head).eval()
     perm = torch.randperm(scene.n_particles, generator=torch.Generator().manual_seed(0))
     hist = tr.positions[:, :4]
     with torch.no_grad():
@@ -80,13 +82,14 @@ def test_predictions_are_equivariant_to_particle_order():
     assert torch.allclose(out[:, perm], out_p, atol=1e-5)
 
 
-def test_gradients_reach_grouping_rigidness_and_parameters():
-    scene, tr, g, q, planes, kin = inputs("rigid_fall", steps=10)
-    model = model_for(scene)
+@pytest.mark.parametrize(("env", "rigid_head"), [("rigid_fall", "pooled"), ("rigid_fall", "projected"), ("mass_rope", "projected")])
+def test_gradients_reach_grouping_rigidness_and_parameters(env, rigid_head):
+    scene, tr, g, q, planes, kin = inputs(env, steps=10)
+    model = model_for(scene, rigid_head=rigid_head)
     g, q, p = g.clone().requires_grad_(), (q * 0.7).requires_grad_(), tr.params.clone().requires_grad_()
     model(tr.positions[:, :4], g, q, p, planes[:, :4], kin).square().sum().backward()
     for grad in (g.grad, q.grad, p.grad):
-        assert grad is not None and float(grad.abs().sum()) > 0
+        assert grad is not None and float(grad.abs().sum()) > 0 and bool(grad.isfinite().all())
 
 
 def test_rigid_head_transform():
@@ -95,6 +98,33 @@ def test_rigid_head_transform():
     quarter = quaternion_to_matrix(torch.tensor([[[np.cos(np.pi / 4), 0.0, 0.0, np.sin(np.pi / 4)]]], dtype=torch.float32))
     disp = rigid_displacement(pos, g, quarter, torch.tensor([[[0.0, 0.0, 1.0]]]))
     assert torch.allclose(pos + disp, torch.tensor([[[0.0, 1.0, 1.0], [0.0, -1.0, 1.0]]]), atol=1e-6)
+
+
+def test_momentum_projection_recovers_a_rigid_step_and_moves_a_body_pushed_at_one_particle():
+    gen = torch.Generator().manual_seed(0)
+    pos = torch.randn(2, 64, 3, generator=gen) * 0.1
+    g = torch.zeros(2, 64, 2)
+    g[:, :32, 0], g[:, 32:, 1] = 1.0, 1.0
+    half = 0.025  # a 0.05 rad step about a tilted axis, a fast tumble at 60 frames a second
+    axis = torch.tensor([0.3, 0.5, 0.8]) / torch.tensor([0.3, 0.5, 0.8]).norm()
+    rot = quaternion_to_matrix(torch.cat([torch.tensor([np.cos(half)]), np.sin(half) * axis]).float().expand(2, 2, 4))
+    step = torch.tensor([0.01, -0.02, 0.03]).expand(2, 2, 3)
+    disp = rigid_displacement(pos, g, rot, step)
+    rot_fit, step_fit = momentum_projection(pos, g, disp)
+    assert torch.allclose(step_fit, step, atol=1e-6)
+    assert float((rot_fit - rot).abs().max()) < 5e-4  # first order in the angle: 1% of the 0.05 rad step
+    # an impulse on one particle: the body moves by 1/32 of it and turns about the centroid, the other body stays
+    push = torch.zeros(2, 64, 3)
+    push[:, 0, 0] = 0.032
+    rot_fit, step_fit = momentum_projection(pos, g, push)
+    assert torch.allclose(step_fit[:, 0], torch.tensor([0.001, 0.0, 0.0]), atol=1e-7)
+    assert float(step_fit[:, 1].abs().max()) == 0.0 and torch.allclose(rot_fit[:, 1], torch.eye(3).expand(2, 3, 3))
+    assert float((rot_fit[:, 0] - torch.eye(3)).abs().max()) > 1e-4
+
+
+def test_rigid_head_option_is_checked():
+    with pytest.raises(ValueError, match="model.dynamics.net.rigid_head"):
+        DynamicsPrior([-15.0], [-5.0], 3, radius=0.08, rigid_head="mean")
 
 
 @pytest.mark.parametrize("env", ["fluid_cube", "mass_rope"])

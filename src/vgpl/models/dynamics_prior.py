@@ -30,7 +30,7 @@ from vgpl.eval.rollout import rollout
 from vgpl.graph import edge_features, max_degree, plane_ghosts, radius_graph
 from vgpl.nn.normalisation import NormalisationBuffers
 from vgpl.nn.propagation import EdgeEncoder, Propagator
-from vgpl.nn.rigid import quaternion_to_matrix, rigid_displacement, soft_centroids
+from vgpl.nn.rigid import momentum_projection, quaternion_to_matrix, rigid_displacement, soft_centroids
 
 PARTICLE, KINEMATIC, GHOST = 0, 1, 2
 
@@ -60,8 +60,11 @@ class DynamicsPrior(NormalisationBuffers, L.LightningModule):
         rigid_dropout: float = 0.0,
         action_lookahead: bool = False,
         rollout_steps: int = 1,
+        rigid_head: str = "pooled",
     ) -> None:
         super().__init__()
+        if rigid_head not in ("pooled", "projected"):
+            raise ValueError(f"DynamicsPrior: rigid_head={rigid_head!r} (model.dynamics.net.rigid_head), expected 'pooled' (the paper) or 'projected'")
         if rollout_steps < 1:
             raise ValueError(f"DynamicsPrior: rollout_steps={rollout_steps}, expected at least 1 (steps rolled in the training loss)")
         self.save_hyperparameters()
@@ -73,7 +76,7 @@ class DynamicsPrior(NormalisationBuffers, L.LightningModule):
         self.edge_term = nn.Linear(width, width)
         self.propagator = Propagator(width)
         self.nonrigid_head = MLP([width, width, width, 3], norm=None)
-        self.rigid_head = MLP([width, width, width, 7], norm=None)
+        self.rigid_head = MLP([width, width, width, 7 if rigid_head == "pooled" else 3], norm=None)
         self.max_degree_seen = 0
 
     # ---- normalisation (physics outside the network; set_stats, normalise_params: the mixin) -----
@@ -156,14 +159,25 @@ class DynamicsPrior(NormalisationBuffers, L.LightningModule):
             effect = self.propagator(effect, code, term, edge_index)
         particle = effect[: b * n].reshape(b, n, -1)
         nonrigid = self.nonrigid_head(particle)
-        pooled = torch.einsum("bnm,bnw->bmw", grouping, particle) / grouping.sum(1).clamp_min(1e-8)[..., None]
-        out = self.rigid_head(pooled)  # [B, M, 7]
-        identity = torch.tensor([1.0, 0.0, 0.0, 0.0], device=out.device)
-        rotation = quaternion_to_matrix(identity + out[..., :4])
-        translation = self.to_displacement(out[..., 4:])
+        rotation, translation = self.rigid_motion(history[:, -1], grouping, particle)
         rigid = self.to_normalised(rigid_displacement(history[:, -1], grouping, rotation, translation))
         q = (grouping * rigidness[:, None, :]).sum(-1, keepdim=True)
         return (1.0 - q) * nonrigid + q * rigid
+
+    def rigid_motion(self, pos, grouping, particle) -> tuple[torch.Tensor, torch.Tensor]:
+        """Each instance's rigid step (rotation [B, M, 3, 3] about its centroid, translation [B, M, 3])
+        from the particles' embeddings [B, N, W]; pos [B, N, 3], grouping [B, N, M].
+
+        ``pooled`` (the paper): an MLP on the instance's mean embedding gives a quaternion and a
+        translation. ``projected``: an MLP gives every particle a displacement, and the instance moves
+        with their linear and angular momentum (nn.rigid.momentum_projection; README: design).
+        """
+        if self.hparams.rigid_head == "projected":
+            return momentum_projection(pos, grouping, self.to_displacement(self.rigid_head(particle)))
+        pooled = torch.einsum("bnm,bnw->bmw", grouping, particle) / grouping.sum(1).clamp_min(1e-8)[..., None]
+        out = self.rigid_head(pooled)  # [B, M, 7]
+        identity = torch.tensor([1.0, 0.0, 0.0, 0.0], device=out.device)
+        return quaternion_to_matrix(identity + out[..., :4]), self.to_displacement(out[..., 4:])
 
     def step(self, history, grouping, rigidness, params, planes, kinematic, kinematic_next=None) -> torch.Tensor:
         """Next positions [B, N, 3]; kinematic particles take ``kinematic_next`` [B, N, 3] when given.
