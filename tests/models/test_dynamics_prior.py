@@ -106,7 +106,7 @@ def test_momentum_projection_recovers_a_rigid_step_and_moves_a_body_pushed_at_on
     g = torch.zeros(2, 64, 2)
     g[:, :32, 0], g[:, 32:, 1] = 1.0, 1.0
     half = 0.025  # a 0.05 rad step about a tilted axis, a fast tumble at 60 frames a second
-    axis = torch.tensor([0.3, 0.5, 0.8]) / torch.tensor([0.3, 0.5, 0.8]).norm()
+    axis = torch.nn.functional.normalize(torch.tensor([0.3, 0.5, 0.8]), dim=0)
     rot = quaternion_to_matrix(torch.cat([torch.tensor([np.cos(half)]), np.sin(half) * axis]).float().expand(2, 2, 4))
     step = torch.tensor([0.01, -0.02, 0.03]).expand(2, 2, 3)
     disp = rigid_displacement(pos, g, rot, step)

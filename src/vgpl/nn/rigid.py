@@ -70,8 +70,7 @@ def momentum_projection(pos: torch.Tensor, grouping: torch.Tensor, disp: torch.T
     Args: pos [B, N, 3]; grouping [B, N, M]; disp [B, N, 3].
     Returns: (rotation [B, M, 3, 3] for rigid_displacement(), translation [B, M, 3]).
     """
-    weight = grouping.sum(1).clamp_min(1e-8)  # [B, M]
-    translation = torch.einsum("bnm,bnc->bmc", grouping, disp) / weight[..., None]
+    translation = soft_centroids(disp, grouping)  # the mean displacement, [B, M, 3]
     rel = pos[:, :, None, :] - soft_centroids(pos, grouping)[:, None]  # [B, N, M, 3]
     spin = torch.linalg.cross(rel, disp[:, :, None, :] - translation[:, None], dim=-1)
     momentum = torch.einsum("bnm,bnmc->bmc", grouping, spin)
