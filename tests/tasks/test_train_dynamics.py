@@ -165,8 +165,8 @@ def test_a_run_killed_with_sigkill_resumes_from_its_last_checkpoint(tmp_path):
 
 
 def test_ddp_on_two_cpu_processes_matches_single_process_training(tmp_path):
-    """trainer=ddp (gloo, 2 processes x batch 2) against one process x batch 4: the same samples
-    per step, so the validation loss after 6 steps agrees closely."""
+    """trainer=ddp (gloo, 2 processes x batch 2) against one process x batch 4: as many samples per
+    step and gradients averaged over both ranks, so the validation loss after 6 steps agrees closely."""
     import subprocess
     import sys
 
@@ -179,7 +179,10 @@ def test_ddp_on_two_cpu_processes_matches_single_process_training(tmp_path):
     run("task=generate", "data.n_rollouts=6", "data.shard_size=6", "data.render=false", "data.progress=false")
     common = ["task=train_dynamics", "trainer.accelerator=cpu", "model.dynamics.net.width=32", "trainer.max_epochs=1", "trainer.limit_train_batches=6",
               "trainer.limit_val_batches=4", "trainer.enable_progress_bar=false", "eval.n_steps=10", "threads=1",
-              "model.dynamics.net.noise=0", "model.dynamics.net.rigid_dropout=0"]
+              "model.dynamics.net.noise=0", "model.dynamics.net.rigid_dropout=0",
+              # DistributedSampler and the single process's sampler draw other windows, so the 5% bound
+              # is statistical; it was set on the paper's head (rigid_fall's default is now `projected`)
+              "model.dynamics.net.rigid_head=pooled"]
     log = run(*common, "trainer=ddp", "model.dynamics.batch_size=2", f"paths.ckpt_dir={tmp_path}/ddp", f"hydra.run.dir={tmp_path}/r2")
     assert "MEMBER: 2/2" in log
     run(*common, "model.dynamics.batch_size=4", f"paths.ckpt_dir={tmp_path}/single", f"hydra.run.dir={tmp_path}/r1")
