@@ -36,7 +36,7 @@ def config(tmp: Path, *overrides):
         return compose("config", overrides=[*TINY, f"paths.root_dir={tmp}", f"paths.output_dir={tmp}/run", *overrides])
 
 
-pytestmark = pytest.mark.slow  # about 8 minutes on 2 cores: the parameter estimate needs ~600 inference steps
+pytestmark = pytest.mark.slow  # 10 (AMD) to 22 (Intel) minutes on 2 cores: the parameter estimate needs ~600 inference steps
 
 
 @pytest.fixture(scope="module")
