@@ -38,10 +38,10 @@ VARIANTS = [  # (batch, separate_param_net, max_neighbors)
 
 
 def measure(dm: GroundingDataModule, dynamics: DynamicsPrior, scene, radius: float, batch: int, separate: bool,
-            max_neighbors: int, repeat: int) -> dict:
+            max_neighbors: int, repeat: int, trajectory_start: str = "refined", bf16: bool = True) -> dict:
     torch.manual_seed(0)
     model = InferenceModule(scene.param_low.tolist(), scene.param_high.tolist(), scene.n_particles, scene.n_instances, radius,
-                            separate_param_net=separate, max_neighbors=max_neighbors)
+                            separate_param_net=separate, max_neighbors=max_neighbors, trajectory_start=trajectory_start)
     model.set_stats(dynamics)
     model.attach_dynamics(dynamics)
     optimiser = torch.optim.Adam(model.parameters(), lr=1e-4)
@@ -51,7 +51,7 @@ def measure(dm: GroundingDataModule, dynamics: DynamicsPrior, scene, radius: flo
     def step() -> float:
         b = next(batches)
         start = time.perf_counter()
-        with torch.autocast("cpu", dtype=torch.bfloat16):
+        with torch.autocast("cpu", dtype=torch.bfloat16, enabled=bf16):
             loss = model._losses(b)["loss"]
         optimiser.zero_grad()
         loss.backward()
@@ -62,7 +62,8 @@ def measure(dm: GroundingDataModule, dynamics: DynamicsPrior, scene, radius: flo
     step()
     times = [step() for _ in range(repeat)]
     ms = float(np.median(times)) * 1e3
-    return {"batch": batch, "separate_param_net": separate, "max_neighbors": max_neighbors,
+    return {"batch": batch, "separate_param_net": separate, "max_neighbors": max_neighbors, "trajectory_start": trajectory_start,
+            "precision": "bf16-mixed" if bf16 else "32-true",
             "step_ms": round(ms, 1), "ms_per_window": round(ms / batch, 1)}
 
 
@@ -72,15 +73,22 @@ def main() -> None:
     parser.add_argument("--dynamics", default="checkpoints/standard/fluid_cube/dynamics/last.ckpt")
     parser.add_argument("--repeat", type=int, default=8)
     parser.add_argument("--threads", type=int, default=2)
+    parser.add_argument("--trajectory-start", default="refined", choices=["refined", "truth", "both"],
+                        help="model.inference.net.trajectory_start ('both' rolls two starts: the standard runs since session 8)")
+    parser.add_argument("--window-span", type=int, default=20, help="model.inference.window_span the proposals were exported for (quick: 8)")
+    parser.add_argument("--fp32", action="store_true", help="no bf16 autocast (what fast_precision picks on a CPU without bf16 units)")
+    parser.add_argument("--variants", type=int, nargs="*", help="indices into VARIANTS to run (default: all)")
     args = parser.parse_args()
     torch.set_num_threads(args.threads)
     dynamics, cfg = load_stage(args.dynamics, DynamicsPrior)
     scene = scene_of(cfg)
-    dm = GroundingDataModule(args.data, scene, 10, 5, 2, cfg.env.get("start_frame", 0), 1, 20)
+    dm = GroundingDataModule(args.data, scene, 10, 5, 2, cfg.env.get("start_frame", 0), 1, args.window_span)
     dm.setup()
     machine = describe()
-    for batch, separate, neighbors in VARIANTS:
-        row = measure(dm, dynamics, scene, float(cfg.env.graph_radius), batch, separate, neighbors, args.repeat)
+    for i, (batch, separate, neighbors) in enumerate(VARIANTS):
+        if args.variants and i not in args.variants:
+            continue
+        row = measure(dm, dynamics, scene, float(cfg.env.graph_radius), batch, separate, neighbors, args.repeat, args.trajectory_start, not args.fp32)
         print(json.dumps({"benchmark": "inference_train_step", "env": scene.name, **row, "machine": machine}), flush=True)
 
 

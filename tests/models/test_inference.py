@@ -58,15 +58,35 @@ def test_which_trajectory_trains_the_refinement_and_which_the_parameters(start):
     heads = [inf.refine_head.lins[-1].weight, inf.param_head.lins[-1].weight]
     grads = {k: torch.autograd.grad(losses[k], heads, allow_unused=True, retain_graph=True) for k in ("rollout", "rollout_from_truth") if k in losses}
     assert set(grads) == {"refined": {"rollout"}, "truth": {"rollout_from_truth"}, "both": {"rollout", "rollout_from_truth"}}[start]
+    none = lambda grad: grad is None or not grad.any()  # noqa: E731  ("both" rolls the two starts as one batch: exact zeros)
     if "rollout_from_truth" in grads:  # from the true frames: P, never dX
         refine_grad, param_grad = grads["rollout_from_truth"]
-        assert refine_grad is None and param_grad.abs().sum() > 0
+        assert none(refine_grad) and param_grad.abs().sum() > 0
     if "rollout" in grads:  # from the refined frames: dX, and P unless the true start trains it
         refine_grad, param_grad = grads["rollout"]
         assert refine_grad.abs().sum() > 0
-        assert (param_grad is None) if start == "both" else (param_grad.abs().sum() > 0)
+        assert none(param_grad) if start == "both" else (param_grad.abs().sum() > 0)
     expected = losses["refine"] + sum(losses[k] for k in grads)
     torch.testing.assert_close(losses["loss"], expected)
+
+
+def test_both_starts_rolled_as_one_batch_give_each_start_alone():
+    """trajectory_start="both" rolls the refined and the true start as one batch of 2B scenes; each
+    loss is what a rollout of its start alone gives (a reference computed here with rollout())."""
+    from vgpl.eval.rollout import rollout
+
+    torch.manual_seed(0)
+    dyn, inf = _modules(trajectory_start="both")
+    batch = _batch()
+    losses = inf._losses(batch)
+    with torch.no_grad():
+        out = inf.infer(batch["proposals"], batch["logits"], batch["kinematic"][0])
+    truth, t, h = batch["positions"], batch["proposals"].shape[1], dyn.hparams.history
+    target = truth[:, h:]
+    for name, start in (("rollout", out["positions"][:, :h]), ("rollout_from_truth", truth[:, :h])):
+        alone = rollout(dyn, torch.cat([start, target], 1), out["grouping"], out["rigidness"], out["params"], batch["planes"],
+                        batch["kinematic"][0], t - h + inf.hparams.horizon)
+        torch.testing.assert_close(losses[name].detach(), ((alone - target) / dyn.disp_std).abs().mean(), rtol=1e-5, atol=1e-7)
 
 
 def test_unknown_trajectory_start_is_refused():

@@ -119,16 +119,46 @@ def test_checkpoint_on_a_dataset_with_another_particle_count_is_named(trained, t
 
 
 def test_ckpt_path_last_resumes_an_interrupted_run_from_the_stage_folder(tmp_path, caplog):
+    """... and the learning rate decays by global step (6 steps an epoch here): the fit cut at step 4,
+    mid-epoch, resumes at the full rate and is at lr x 0.5 after step 6, as an uninterrupted fit."""
     generate(config(tmp_path, "task=generate"))
     last = tmp_path / "ckpt/dynamics/last.ckpt"
-    train_dynamics(config(tmp_path, "task=train_dynamics", "trainer.max_epochs=5", "+trainer.max_steps=4"))  # "interrupted" at step 4
+    decay = ["model.dynamics.net.lr=1e-3", "model.dynamics.net.lr_decay=0.5"]
+    train_dynamics(config(tmp_path, "task=train_dynamics", "trainer.max_epochs=5", "+trainer.max_steps=4", *decay))  # "interrupted" at step 4
     first = torch.load(last, weights_only=False)
     with caplog.at_level("INFO"):
-        train_dynamics(config(tmp_path, "task=train_dynamics", "trainer.max_epochs=5", "+trainer.max_steps=9", "ckpt_path=last"))
+        train_dynamics(config(tmp_path, "task=train_dynamics", "trainer.max_epochs=5", "+trainer.max_steps=9", "ckpt_path=last", *decay))
     second = torch.load(last, weights_only=False)
     assert f"Restoring states from the checkpoint path at {last}" in caplog.text
     assert first["global_step"] == 4 and second["global_step"] == 9
     assert float(second["optimizer_states"][0]["state"][0]["step"]) == 9  # Adam continued, not restarted
+    assert first["optimizer_states"][0]["param_groups"][0]["lr"] == pytest.approx(1e-3)  # steps 0-3: epoch 0
+    assert second["optimizer_states"][0]["param_groups"][0]["lr"] == pytest.approx(5e-4)  # steps 6-8: epoch 1
+
+
+def test_learning_rate_decays_by_global_step_across_a_time_capped_fit_and_its_resume(tmp_path, monkeypatch):
+    """A fit cut by trainer.max_time mid-epoch (steps slowed to >= 0.4 s, cap 2 s: 1 to 5 of the 6
+    steps of an epoch) and resumed decays at step 6, as an uninterrupted fit. (Lightning counts the
+    cut epoch as ended without a scheduler step; with a per-epoch scheduler, where the decay then
+    fell depended on how each resumed fit counted its batches: the session-14 GPU runs, each cut
+    by max_time, ran 42k steps, 1.6 epochs, at the initial rate.)"""
+    import time
+
+    from vgpl.models.dynamics_prior import DynamicsPrior
+
+    generate(config(tmp_path, "task=generate"))
+    last = tmp_path / "ckpt/dynamics/last.ckpt"
+    decay = ["model.dynamics.net.lr=1e-3", "model.dynamics.net.lr_decay=0.5", "trainer.max_epochs=5", "trainer.val_check_interval=4"]
+    step = DynamicsPrior.training_step
+    monkeypatch.setattr(DynamicsPrior, "training_step", lambda self, *a: (time.sleep(0.4), step(self, *a))[1])
+    train_dynamics(config(tmp_path, "task=train_dynamics", "trainer.max_time=00:00:00:02", *decay))
+    cut = torch.load(last, weights_only=False)["global_step"]
+    assert 1 <= cut <= 5
+    monkeypatch.setattr(DynamicsPrior, "training_step", step)
+    train_dynamics(config(tmp_path, "task=train_dynamics", "+trainer.max_steps=7", "ckpt_path=last", *decay))
+    resumed = torch.load(last, weights_only=False)
+    assert resumed["global_step"] == 7
+    assert resumed["optimizer_states"][0]["param_groups"][0]["lr"] == pytest.approx(5e-4)  # step 6 began epoch 1
 
 
 def test_a_run_killed_with_sigkill_resumes_from_its_last_checkpoint(tmp_path):

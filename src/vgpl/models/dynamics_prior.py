@@ -233,6 +233,16 @@ class DynamicsPrior(NormalisationBuffers, L.LightningModule):
         return first
 
     def configure_optimizers(self):
-        opt = torch.optim.Adam(self.parameters(), lr=self.hparams.lr)
-        sched = torch.optim.lr_scheduler.ExponentialLR(opt, gamma=self.hparams.lr_decay)
-        return {"optimizer": opt, "lr_scheduler": {"scheduler": sched, "interval": "epoch"}}
+        return torch.optim.Adam(self.parameters(), lr=self.hparams.lr)
+
+    def on_train_batch_start(self, batch, batch_idx) -> None:
+        """The learning rate is lr x lr_decay ** (epochs completed, counted in optimiser steps): a
+        function of global_step alone, so a fit stopped by trainer.max_time and resumed decays at the
+        same steps as an uninterrupted one (a per-epoch scheduler never fires in a fit cut mid-epoch,
+        and the resumed fit counts its epochs anew)."""
+        if self.hparams.lr_decay == 1.0:
+            return
+        lr = self.hparams.lr * self.hparams.lr_decay ** (self.global_step // self.trainer.num_training_batches)
+        for group in self.trainer.optimizers[0].param_groups:
+            group["lr"] = lr
+        self.log("train/lr", lr, batch_size=1)

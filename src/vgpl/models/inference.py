@@ -186,15 +186,17 @@ class InferenceModule(NormalisationBuffers, L.LightningModule):
         n_roll, mode = t - h + k, self.hparams.trajectory_start
         if n_roll > 0:
             target = truth[:, h : t + k]
-
-            def trajectory_l1(start: torch.Tensor, params: torch.Tensor) -> torch.Tensor:
-                future = rollout(dyn, torch.cat([start, target], 1), g, q, params, planes, kinematic, n_roll)
-                return ((future - target) / scale).abs()[:, :, movable].mean()
-
-            if mode in ("refined", "both"):  # "both": P learns from the true start only
-                losses["rollout"] = trajectory_l1(x[:, :h], p if mode == "refined" else p.detach())
-            if mode in ("truth", "both"):
-                losses["rollout_from_truth"] = trajectory_l1(truth[:, :h], p)
+            # "both" rolls the two starts as one batch of 2B scenes: one graph and one prior call a
+            # step instead of two (scenes never share edges, so each half is what it would be alone)
+            runs = {"refined": {"rollout": (x[:, :h], p)}, "truth": {"rollout_from_truth": (truth[:, :h], p)},
+                    "both": {"rollout": (x[:, :h], p.detach()), "rollout_from_truth": (truth[:, :h], p)}}[mode]
+            copies = len(runs)
+            rep = lambda z: z.repeat(copies, *([1] * (z.dim() - 1)))  # noqa: E731
+            start, params = (torch.cat(z) for z in zip(*runs.values()))
+            future = rollout(dyn, torch.cat([start, rep(target)], 1), rep(g), rep(q), params, rep(planes), kinematic, n_roll)
+            error = ((future - rep(target)) / scale).abs()[:, :, movable]
+            for i, name in enumerate(runs):  # "both": P learns from the true start only, dX through the refined one
+                losses[name] = error[i * b : (i + 1) * b].mean()
         losses["refine"] = ((out["positions"] - truth[:, :t]) / scale).abs()[:, :, movable].mean()
         p_error = (out["params_normalised"] - self.normalise_params(batch["params"])).abs()
         losses["loss"] = (losses.get("one_step", 0.0) + losses.get("rollout", 0.0) + losses.get("rollout_from_truth", 0.0)
