@@ -25,6 +25,11 @@ from vgpl.nn.normalisation import NormalisationBuffers
 from vgpl.nn.propagation import EdgeEncoder, Propagator
 
 
+def tile_batch(z: torch.Tensor, copies: int) -> torch.Tensor:
+    """[B, ...] -> [copies * B, ...]: the batch repeated ``copies`` times, copy-major."""
+    return z.repeat(copies, *([1] * (z.dim() - 1)))
+
+
 class SpatioTemporalEncoder(nn.Module):
     """Message passing on each frame's radius graph, then a bidirectional GRU over time per particle.
 
@@ -178,8 +183,8 @@ class InferenceModule(NormalisationBuffers, L.LightningModule):
             hist = torch.cat([x[:, s : s + h] for s in starts])
             pl = torch.cat([planes[:, s : s + h + 1] for s in starts])  # + the predicted frame (action)
             target = torch.cat([truth[:, s + h] for s in starts])
-            rep = lambda z: z.repeat(len(starts), *([1] * (z.dim() - 1)))  # noqa: E731
-            pred = dyn.step(hist, rep(g), rep(q), rep(p), pl, kinematic, target)
+            n = len(starts)
+            pred = dyn.step(hist, tile_batch(g, n), tile_batch(q, n), tile_batch(p, n), pl, kinematic, target)
             losses["one_step"] = ((pred - target) / scale).abs()[:, movable].mean()
         # the trajectory: from the first h refined (or true) frames through the rest of the window
         # and k frames past it; a wrong parameter's error grows with every step, which makes P visible
@@ -190,11 +195,11 @@ class InferenceModule(NormalisationBuffers, L.LightningModule):
             # step instead of two (scenes never share edges, so each half is what it would be alone)
             runs = {"refined": {"rollout": (x[:, :h], p)}, "truth": {"rollout_from_truth": (truth[:, :h], p)},
                     "both": {"rollout": (x[:, :h], p.detach()), "rollout_from_truth": (truth[:, :h], p)}}[mode]
-            copies = len(runs)
-            rep = lambda z: z.repeat(copies, *([1] * (z.dim() - 1)))  # noqa: E731
+            n = len(runs)
             start, params = (torch.cat(z) for z in zip(*runs.values()))
-            future = rollout(dyn, torch.cat([start, rep(target)], 1), rep(g), rep(q), params, rep(planes), kinematic, n_roll)
-            error = ((future - rep(target)) / scale).abs()[:, :, movable]
+            targets = tile_batch(target, n)
+            future = rollout(dyn, torch.cat([start, targets], 1), tile_batch(g, n), tile_batch(q, n), params, tile_batch(planes, n), kinematic, n_roll)
+            error = ((future - targets) / scale).abs()[:, :, movable]
             for i, name in enumerate(runs):  # "both": P learns from the true start only, dX through the refined one
                 losses[name] = error[i * b : (i + 1) * b].mean()
         losses["refine"] = ((out["positions"] - truth[:, :t]) / scale).abs()[:, :, movable].mean()
