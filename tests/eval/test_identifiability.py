@@ -5,7 +5,7 @@ from types import SimpleNamespace
 import pytest
 import torch
 
-from vgpl.eval.identifiability import oracle_param_sweep
+from vgpl.eval.identifiability import oracle_param_sweep, param_gradient_agreement
 from vgpl.eval.rollout import rollout
 
 
@@ -17,8 +17,8 @@ class Falling:
     disp_std = torch.tensor(0.01)
     low, high = torch.tensor([-15.0]), torch.tensor([-5.0])
 
-    def __init__(self, blind: bool = False) -> None:
-        self.blind = blind
+    def __init__(self, blind: bool = False, floor: float | None = None) -> None:
+        self.blind, self.floor = blind, floor
 
     def normalise_params(self, p):
         return (p - self.low) / (self.high - self.low) * 2 - 1
@@ -30,7 +30,10 @@ class Falling:
         accel = torch.zeros_like(window[:, -1])
         if not self.blind:
             accel[..., 1] = params[:, :1] * (1 / 60) ** 2
-        return 2 * window[:, -1] - window[:, -2] + accel
+        nxt = 2 * window[:, -1] - window[:, -2] + accel
+        if self.floor is not None:  # an inelastic floor: what lands stays, whatever P
+            nxt = torch.cat([nxt[..., :1], nxt[..., 1:2].clamp(min=self.floor), nxt[..., 2:]], -1)
+        return nxt
 
 
 def _scenes(params: torch.Tensor, n_steps: int = 8, n: int = 5):
@@ -76,3 +79,39 @@ def test_gate_names_only_the_parameters_whose_oracle_is_not_below_the_ratio_time
     assert unidentified(metrics, ["a", "b"], max_ratio=1.0) == {"b": (35.9, 29.1)}
     assert unidentified(metrics, ["a", "b"], max_ratio=0.5) == {"a": (15.0, 27.2), "b": (35.9, 29.1)}
     assert unidentified(metrics, ["a"], max_ratio=15.0 / 27.2) == {"a": (15.0, 27.2)}  # equal is a failure: strictly below
+
+
+def test_gradient_in_p_points_to_the_truth_for_every_scene_and_probe_of_a_prior_that_uses_it():
+    params = torch.tensor([[-14.0], [-11.0], [-9.0], [-6.0]])
+    positions, planes, kinematic = _scenes(params)
+    out = param_gradient_agreement(Falling(), positions, None, None, params, planes, kinematic, n_steps=8)
+    truth = Falling().normalise_params(params)[:, 0]  # -0.8, -0.2, 0.2, 0.8
+    probes = torch.tensor([-0.75, -0.25, 0.25, 0.75])
+    assert out["agreement"].shape == (1, 4) and torch.equal(out["probes"], probes)
+    assert torch.equal(out["agreement"], torch.ones(1, 4))
+    # scenes within 0.1 of a probe are left out: -0.8 of -0.75, -0.2 of -0.25, 0.2 of 0.25, 0.8 of 0.75
+    assert out["counted"].tolist() == [[((truth - v).abs() > 0.1).sum().item() for v in probes.tolist()]] == [[3, 3, 3, 3]]
+    assert (out["median_abs_grad"] > 0).all()
+
+
+def test_a_prior_blind_to_p_gives_no_gradient_and_no_agreement():
+    params = torch.tensor([[-14.0], [-6.0]])
+    positions, planes, kinematic = _scenes(params)
+    out = param_gradient_agreement(Falling(blind=True), positions, None, None, params, planes, kinematic, n_steps=8)
+    assert torch.equal(out["agreement"], torch.zeros(1, 4)) and torch.equal(out["median_abs_grad"], torch.zeros(1, 4))
+
+
+def test_windows_after_landing_teach_nothing_while_the_fall_teaches_p():
+    """RigidFall in miniature: particles fall onto a floor at y = 0 and stay. A window rolled from the
+    fall has the gradient right; one rolled from the rest has none (the README's RigidFall table)."""
+    params = torch.tensor([[-14.0], [-11.0], [-6.0]])
+    torch.manual_seed(0)
+    start = torch.rand(3, 2, 4, 3) * 0.02 + torch.tensor([0.0, 0.05, 0.0])  # 5-7 cm above the floor
+    start[:, 1] = start[:, 0]
+    planes, kinematic, prior = torch.zeros(3, 30, 0, 4), torch.zeros(4, dtype=torch.bool), Falling(floor=0.0)
+    truth = torch.cat([start, rollout(prior, start, None, None, params, planes, kinematic, 28)], 1)  # [3, 30, 4, 3]
+    assert (truth[:, 15:, :, 1] == 0).all() and (truth[:, 2, :, 1] > 0).all()  # landed by frame 15, falling at 2
+    falling = param_gradient_agreement(prior, truth[:, :10], None, None, params, planes[:, :10], kinematic, n_steps=8)
+    landed = param_gradient_agreement(prior, truth[:, 15:25], None, None, params, planes[:, :10], kinematic, n_steps=8)
+    assert falling["agreement"].min() == 1.0
+    assert landed["agreement"].max() == 0.0 and landed["median_abs_grad"].max() == 0.0

@@ -93,6 +93,29 @@ def test_parameter_sweep_from_proposals_starts_from_them_and_names_a_missing_fil
     assert from_proposals["future_mse_x1e4@10"] == from_truth["future_mse_x1e4@10"]  # the future MSE is unaffected
 
 
+def test_gradient_agreement_by_window_start_is_the_per_window_numbers_and_bad_starts_name_the_option(trained):
+    from vgpl.checkpoint import scene_of
+    from vgpl.data.trajectories import ground_truth_grouping
+    from vgpl.eval.identifiability import param_gradient_agreement
+
+    tmp, result = trained
+    ckpt = f"ckpt_path={result['checkpoint']}"
+    out = evaluate_dynamics(config(tmp, "task=evaluate_dynamics", ckpt, "task.param_grid=0", "eval.max_rollouts=2", "task.gradient_starts=[15]"))
+    shares = out["param_gradient_agreement/gravity"]
+    assert list(shares) == ["15"] and out["gradient_probes"] == [-0.75, -0.25, 0.25, 0.75]
+    model, train_cfg = load_dynamics(result["checkpoint"])
+    test, scene = load_split(tmp / "data", "rigid_fall", "test"), scene_of(train_cfg)
+    frames, n = slice(15, 30), min(2, len(test.params))  # the inference module's window: 10 observed + 5 horizon
+    direct = param_gradient_agreement(model, test.positions[:n, frames], ground_truth_grouping(test).expand(n, -1, -1), test.rigid.float().expand(n, -1),
+                                      test.params[:n], scene.planes_at(test.actions[:n, frames]), torch.as_tensor(scene.kinematic), 11)
+    assert shares["15"] == pytest.approx(direct["agreement"][0].tolist(), abs=1e-4, nan_ok=True)
+    assert (tmp / "run/gradient_agreement_gravity.png").is_file()
+    assert json.loads((tmp / "run/metrics.json").read_text())["param_gradient_agreement/gravity"] == shares
+    with pytest.raises(ValueError, match=r"task.gradient_starts=\[16\]: .*starts 0..15"):
+        evaluate_dynamics(config(tmp, "task=evaluate_dynamics", ckpt, "task.param_grid=0", "eval.max_rollouts=2", "task.gradient_starts=[16]"))
+    assert json.loads((tmp / "run/metrics.json").read_text())["param_gradient_agreement/gravity"] == shares  # refused before writing anything
+
+
 def test_reloaded_checkpoint_predicts_bit_for_bit(trained):
     _, result = trained
     a, _ = load_dynamics(result["checkpoint"])

@@ -55,6 +55,19 @@ def params_figure(truth: torch.Tensor, pred: torch.Tensor, low: float, high: flo
     return fig
 
 
+def gradient_agreement_figure(starts: list[int], agreement: torch.Tensor, probes: torch.Tensor, name: str, title: str = ""):
+    """Share of scenes whose rollout-loss gradient in ``name`` points to the truth against the frame
+    the window starts at, one line per probe value. ``agreement`` [S, V], ``probes`` [V] normalised."""
+    fig, ax = plt.subplots(figsize=(4.5, 3.2), dpi=120)
+    for k, v in enumerate(probes.tolist()):
+        ax.plot(starts, agreement[:, k].numpy() * 100, marker="o", ms=3, label=f"{name} at {v:+.2f}")
+    ax.axhline(50, color="grey", lw=0.8, ls="--", label="a coin")
+    ax.set(xlabel="window start frame", ylabel="gradient points to the truth (%)", ylim=(0, 102), title=title)
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    return fig
+
+
 def save(fig, path: str | Path) -> Path:
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)

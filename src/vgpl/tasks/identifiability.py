@@ -21,8 +21,8 @@ from vgpl.data.grounding import proposals_path
 from vgpl.data.proposals import read_proposals
 from vgpl.data.schema import DatasetError
 from vgpl.data.trajectories import Rollouts, ground_truth_grouping, load_split
-from vgpl.eval.figures import params_figure, save
-from vgpl.eval.identifiability import oracle_param_sweep
+from vgpl.eval.figures import gradient_agreement_figure, params_figure, save
+from vgpl.eval.identifiability import oracle_param_sweep, param_gradient_agreement
 from vgpl.models.dynamics_prior import DynamicsPrior
 from vgpl.sim.scene import Scene
 from vgpl.tasks.stage import stage_checkpoint
@@ -80,6 +80,45 @@ def sweep_metrics(model: DynamicsPrior, scene: Scene, test: Rollouts, cfg: DictC
         result[f"rollout_l1_over_grid/{name}"] = [round(float(v), 5) for v in sweep["loss_curve"][j]]
         save(params_figure(sweep["truth"][:, j], sweep["oracle_params"][:, j], float(scene.param_low[j]), float(scene.param_high[j]), name,
                            f"{scene.name}: argmin of the prior's rollout L1"), out / f"oracle_{name}.png")
+    return result
+
+
+def check_window_starts(starts: list[int], n_frames: int, observed: int, horizon: int) -> None:
+    """Refuse ``task.gradient_starts`` whose windows (``observed`` + ``horizon`` frames) leave ``n_frames``-frame rollouts."""
+    last = n_frames - observed - horizon
+    if not starts or min(starts) < 0 or max(starts) > last:
+        raise ValueError(f"task.gradient_starts={list(starts)}: every start + {observed} observed + {horizon} frames must fit in the "
+                         f"{n_frames}-frame rollouts (starts 0..{last})")
+
+
+def gradient_agreement_by_start(model: DynamicsPrior, scene: Scene, test: Rollouts, observed: int, horizon: int, starts: list[int],
+                                out: Path, max_rollouts: int | None = None) -> dict:
+    """``param_gradient_agreement`` over windows of the inference module's length (``observed`` +
+    ``horizon`` frames, from the true history) starting at each frame of ``starts``, on the first
+    ``max_rollouts`` test rollouts. Which windows teach P? Those whose gradient points to the truth.
+
+    Returns ``param_gradient_agreement/<name>``: {start: [share per probe]}, and
+    ``param_gradient_median_abs/<name>`` the same for the median |dL/dP|; the curves go to
+    ``out/gradient_agreement_<name>.png``."""
+    check_window_starts(starts, test.positions.shape[1], observed, horizon)
+    n_frames = observed + horizon
+    n = test.positions.shape[0] if max_rollouts is None else min(max_rollouts, test.positions.shape[0])
+    model.eval()
+    grouping, rigidness, kinematic = ground_truth_grouping(test).expand(n, -1, -1), test.rigid.float().expand(n, -1), torch.as_tensor(scene.kinematic)
+    rows = []
+    for start in starts:
+        frames = slice(start, start + n_frames)
+        rows.append(param_gradient_agreement(model, test.positions[:n, frames], grouping, rigidness, test.params[:n],
+                                             scene.planes_at(test.actions[:n, frames]), kinematic, n_frames - model.hparams.history))
+        log.info("gradient agreement, window from frame %d: %s", start, [[round(v, 3) for v in r] for r in rows[-1]["agreement"].tolist()])
+    result: dict = {"gradient_starts": list(starts), "gradient_probes": rows[0]["probes"].tolist()}
+    for j, name in enumerate(scene.param_names):
+        agreement = torch.stack([r["agreement"][j] for r in rows])  # [S, V]
+        result[f"param_gradient_agreement/{name}"] = {str(s): [round(float(v), 4) for v in a] for s, a in zip(starts, agreement)}
+        result[f"param_gradient_median_abs/{name}"] = {str(s): [round(float(r["median_abs_grad"][j, k]), 5) for k in range(len(r["probes"]))]
+                                                       for s, r in zip(starts, rows)}
+        save(gradient_agreement_figure(list(starts), agreement, rows[0]["probes"], name, f"{scene.name}: which windows teach {name}"),
+             out / f"gradient_agreement_{name}.png")
     return result
 
 

@@ -20,7 +20,7 @@ from vgpl.eval.preview import write_gif
 from vgpl.eval.tensorboard_media import add_gif, rollout_video
 from vgpl.models.dynamics_prior import DynamicsPrior
 from vgpl.sim.scene import Scene
-from vgpl.tasks.identifiability import sweep_metrics
+from vgpl.tasks.identifiability import check_window_starts, gradient_agreement_by_start, sweep_metrics
 from vgpl.tasks.stage import fit, setup_run, stopping
 
 log = logging.getLogger(__name__)
@@ -116,6 +116,9 @@ def evaluate_dynamics(cfg: DictConfig) -> dict:
     test = load_split(root, scene.name, "test")
     if test.positions.shape[2] != scene.n_particles:
         raise DatasetError(f"{root}/{scene.name}: {test.positions.shape[2]} particles, checkpoint {cfg.ckpt_path} expects {scene.n_particles}")
+    starts = list(cfg.task.get("gradient_starts") or [])
+    if starts:  # refused before an hour of rollouts, not after
+        check_window_starts(starts, test.positions.shape[1], cfg.model.inference.observed, cfg.model.inference.net.horizon)
     metrics, pred, truth = evaluate_rollouts(
         model, scene, test, cfg.eval.observed, cfg.eval.n_steps, cfg.eval.get("max_rollouts"), train_cfg.env.get("start_frame", 0)
     )
@@ -127,5 +130,8 @@ def evaluate_dynamics(cfg: DictConfig) -> dict:
     if grid > 0:
         result |= sweep_metrics(model, scene, test, cfg, train_cfg, out, grid, cfg.eval.get("max_rollouts"), cfg.task.get("param_sweep_history", "truth"))
         log.info("identifiability: %s", {k: v for k, v in result.items() if "param_mae" in k})
+    if starts:
+        inf = cfg.model.inference
+        result |= gradient_agreement_by_start(model, scene, test, inf.observed, inf.net.horizon, starts, out, cfg.eval.get("max_rollouts"))
     (out / "metrics.json").write_text(json.dumps(result, indent=1))
     return result
