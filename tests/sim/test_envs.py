@@ -69,3 +69,14 @@ def test_rollout_does_not_depend_on_its_batch():
     alone = scene.simulate([scene.sample(np.random.default_rng(7))]).positions[0]
     batched = scene.simulate([scene.sample(np.random.default_rng(s)) for s in (3, 7, 9)]).positions[1]
     assert torch.equal(alone, batched)
+
+
+@pytest.mark.parametrize("env,span", [("rigid_fall", 5), ("fluid_cube", 20), ("mass_rope", 20)])
+def test_standard_preset_draws_rigid_falls_inference_windows_before_the_cubes_land(env, span):
+    """RigidFall's gravity shows only while the cubes fall (README, session 16): its standard
+    inference windows start in frames 0-5; the other envs keep 20. An explicit override still wins."""
+    with initialize_config_dir(str(REPO / "conf"), version_base="1.3"):
+        cfg = compose("config", overrides=[f"env={env}", "experiment=standard"])
+        assert cfg.model.inference.window_span == span
+        cfg = compose("config", overrides=[f"env={env}", "experiment=standard", "model.inference.window_span=12"])
+        assert cfg.model.inference.window_span == 12
