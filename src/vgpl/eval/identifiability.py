@@ -19,6 +19,15 @@ import torch
 from vgpl.eval.rollout import rollout
 
 
+def rollout_l1_per_scene(model, positions, grouping, rigidness, params, planes, kinematic, n_steps: int) -> torch.Tensor:
+    """[B]: the mean L1 (units of the displacement std, the inference module's loss) of the rollout
+    from the first H true frames of ``positions`` [B, H + n_steps, N, 3] against the rest, over the
+    movable particles; ``params`` [B, P] physical."""
+    h = model.hparams.history
+    pred = rollout(model, positions, grouping, rigidness, params, planes, kinematic, n_steps)
+    return ((pred - positions[:, h : h + n_steps]) / model.disp_std).abs()[:, :, ~kinematic].mean((1, 2, 3))
+
+
 def oracle_param_sweep(model, positions, grouping, rigidness, params, planes, kinematic, n_steps: int, grid: int = 9) -> dict:
     """Sweep each parameter over ``grid`` evenly spaced values of its range.
 
@@ -32,11 +41,8 @@ def oracle_param_sweep(model, positions, grouping, rigidness, params, planes, ki
     """
     if grid < 2:
         raise ValueError(f"oracle_param_sweep: grid={grid}, expected at least 2 values")
-    h = model.hparams.history
     values = torch.linspace(-1.0, 1.0, grid)
     truth = model.normalise_params(params)  # [B, P] in [-1, 1]
-    movable = ~kinematic
-    target = positions[:, h : h + n_steps]
     oracle, curves = [], []
     with torch.no_grad():
         for j in range(params.shape[1]):
@@ -44,8 +50,7 @@ def oracle_param_sweep(model, positions, grouping, rigidness, params, planes, ki
             for v in values:
                 guess = truth.clone()
                 guess[:, j] = v
-                pred = rollout(model, positions, grouping, rigidness, model.to_physical(guess), planes, kinematic, n_steps)
-                losses.append(((pred - target) / model.disp_std).abs()[:, :, movable].mean((1, 2, 3)))
+                losses.append(rollout_l1_per_scene(model, positions, grouping, rigidness, model.to_physical(guess), planes, kinematic, n_steps))
             loss = torch.stack(losses, 1)  # [B, grid]
             oracle.append(values[loss.argmin(1)])
             curves.append(loss.mean(0))
@@ -72,18 +77,14 @@ def param_gradient_agreement(model, positions, grouping, rigidness, params, plan
     agree; a zero gradient does not agree), ``counted`` [P, V] (scenes counted), ``median_abs_grad``
     [P, V] (over all scenes, per normalised unit of P) and ``probes`` [V].
     """
-    h = model.hparams.history
     probes = torch.as_tensor(probes, dtype=torch.float32)
     truth = model.normalise_params(params).detach()  # [B, P]
-    movable = ~kinematic
-    target = positions[:, h : h + n_steps]
     agreement, counted, magnitude = (torch.zeros(params.shape[1], len(probes)) for _ in range(3))
     for j in range(params.shape[1]):
         for k, v in enumerate(probes.tolist()):
             value = torch.full((params.shape[0],), v, requires_grad=True)
             guess = torch.cat([truth[:, :j], value[:, None], truth[:, j + 1 :]], 1)
-            pred = rollout(model, positions, grouping, rigidness, model.to_physical(guess), planes, kinematic, n_steps)
-            loss = ((pred - target) / model.disp_std).abs()[:, :, movable].mean((1, 2, 3))  # [B], one scene each
+            loss = rollout_l1_per_scene(model, positions, grouping, rigidness, model.to_physical(guess), planes, kinematic, n_steps)
             # a prior blind to P leaves the loss outside the graph: its gradient is zero
             grad = torch.autograd.grad(loss.sum(), value)[0] if loss.requires_grad else torch.zeros_like(value)
             away = (truth[:, j] - v).abs() > margin

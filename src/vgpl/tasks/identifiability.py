@@ -36,6 +36,15 @@ class IdentifiabilityError(RuntimeError):
     """The dynamics prior's rollout loss does not identify a physical parameter."""
 
 
+def true_window(scene: Scene, test: Rollouts, start: int, n_frames: int, n: int) -> tuple:
+    """The first ``n`` rollouts' frames ``start`` .. ``start + n_frames - 1`` with their true grouping and
+    rigidness: (positions [n, F, N, 3] (a copy), grouping [n, N, M], rigidness [n, M], params [n, P],
+    planes [n, F, K, 4], kinematic [N]), the arguments the prior's sweeps take in this order."""
+    frames = slice(start, start + n_frames)
+    return (test.positions[:n, frames].clone(), ground_truth_grouping(test).expand(n, -1, -1), test.rigid.float().expand(n, -1),
+            test.params[:n], scene.planes_at(test.actions[:n, frames]), torch.as_tensor(scene.kinematic))
+
+
 def evaluate_identifiability(model: DynamicsPrior, scene: Scene, test: Rollouts, root: str, observed: int, horizon: int, grid: int,
                              max_rollouts: int | None = None, start_frame: int = 0, history: str = "truth") -> dict:
     """``oracle_param_sweep`` on the first ``max_rollouts`` rollouts of the test split ``test``
@@ -48,10 +57,9 @@ def evaluate_identifiability(model: DynamicsPrior, scene: Scene, test: Rollouts,
     n_frames = observed + horizon
     if start_frame + n_frames > test.positions.shape[1]:
         raise ValueError(f"identifiability: {start_frame} + {observed} observed + {horizon} frames exceed the {test.positions.shape[1]}-frame rollouts")
-    frames = slice(start_frame, start_frame + n_frames)
     n = test.positions.shape[0] if max_rollouts is None else min(max_rollouts, test.positions.shape[0])
     h = model.hparams.history
-    positions = test.positions[:n, frames].clone()
+    positions, grouping, rigidness, params, planes, kinematic = true_window(scene, test, start_frame, n_frames, n)
     if history == "proposals":
         path = proposals_path(root, scene.name, "test")
         proposals = read_proposals(path)
@@ -59,10 +67,7 @@ def evaluate_identifiability(model: DynamicsPrior, scene: Scene, test: Rollouts,
             raise DatasetError(f"{path}: proposals do not cover the first {n} test rollouts' frames {start_frame}..{start_frame + h - 1}; re-export with task=export_proposals")
         positions[:, :h] = proposals.positions[:n, start_frame : start_frame + h]
     model.eval()
-    return oracle_param_sweep(
-        model, positions, ground_truth_grouping(test).expand(n, -1, -1), test.rigid.float().expand(n, -1), test.params[:n],
-        scene.planes_at(test.actions[:n, frames]), torch.as_tensor(scene.kinematic), n_frames - h, grid,
-    ) | {"truth": test.params[:n]}
+    return oracle_param_sweep(model, positions, grouping, rigidness, params, planes, kinematic, n_frames - h, grid) | {"truth": params}
 
 
 def sweep_metrics(model: DynamicsPrior, scene: Scene, test: Rollouts, cfg: DictConfig, train_cfg: DictConfig, out: Path, grid: int,
@@ -104,12 +109,9 @@ def gradient_agreement_by_start(model: DynamicsPrior, scene: Scene, test: Rollou
     n_frames = observed + horizon
     n = test.positions.shape[0] if max_rollouts is None else min(max_rollouts, test.positions.shape[0])
     model.eval()
-    grouping, rigidness, kinematic = ground_truth_grouping(test).expand(n, -1, -1), test.rigid.float().expand(n, -1), torch.as_tensor(scene.kinematic)
     rows = []
     for start in starts:
-        frames = slice(start, start + n_frames)
-        rows.append(param_gradient_agreement(model, test.positions[:n, frames], grouping, rigidness, test.params[:n],
-                                             scene.planes_at(test.actions[:n, frames]), kinematic, n_frames - model.hparams.history))
+        rows.append(param_gradient_agreement(model, *true_window(scene, test, start, n_frames, n), n_frames - model.hparams.history))
         log.info("gradient agreement, window from frame %d: %s", start, [[round(v, 3) for v in r] for r in rows[-1]["agreement"].tolist()])
     result: dict = {"gradient_starts": list(starts), "gradient_probes": rows[0]["probes"].tolist()}
     for j, name in enumerate(scene.param_names):
