@@ -45,3 +45,15 @@ def test_export_covers_the_frames_the_inference_windows_read():
     assert proposal_frames(cfg) == 32  # exactly what the windows above need
     cfg.model.inference.window_span = None
     assert proposal_frames(cfg) is None  # windows anywhere: whole videos
+
+
+def test_truth_proposals_without_noise_are_the_recorded_particles_and_their_instances():
+    from vgpl.data.proposals import truth_proposals
+
+    scene, rollouts, _ = _data(n_frames=12)
+    pos, logits = truth_proposals(rollouts.positions, rollouts.instance, scene.n_instances)
+    assert torch.equal(pos, rollouts.positions) and logits.shape == (2, 12, scene.n_particles, scene.n_instances)
+    grouping = torch.softmax(logits, -1).mean(1)  # what InferenceModule.infer makes of them: the true G
+    assert torch.allclose(grouping, torch.nn.functional.one_hot(rollouts.instance, scene.n_instances).float().expand(2, -1, -1), atol=1e-4)
+    with pytest.raises(ValueError, match="noise_std=-0.1: expected a standard deviation >= 0"):
+        truth_proposals(rollouts.positions, rollouts.instance, scene.n_instances, -0.1)

@@ -99,6 +99,23 @@ def test_evaluation_from_checkpoints_alone_reproduces_the_numbers(tiny):
                 assert again[key] == value, key
 
 
+def test_evaluation_with_truth_proposals_reads_no_video_or_visual_prior_and_says_so(tiny, tmp_path):
+    """eval.proposals=truth: the recorded particles (+ eval.proposals_noise_std) replace the visual
+    prior, a diagnostic of what the inference module does with perfect or known-noisy proposals."""
+    tmp, _ = tiny
+    nowhere = f"ckpt.visual={tmp_path}/no_visual.ckpt"  # never opened
+    exact = evaluate(config(tmp, "task=evaluate", "eval.proposals=truth", nowhere, f"paths.output_dir={tmp_path}/exact"))
+    assert exact["proposals"] == "truth" and exact["refine_mse_x1e4_before"] == 0.0 and exact["grouping_accuracy"] == 1.0
+    noisy = evaluate(config(tmp, "task=evaluate", "eval.proposals=truth", "eval.proposals_noise_std=0.01", nowhere, f"paths.output_dir={tmp_path}/noisy"))
+    assert noisy["refine_mse_x1e4_before"] == pytest.approx(1.0, rel=0.1)  # (0.01 m)^2 x 1e4
+    assert "eval.proposals=truth" in (tmp_path / "noisy/report.md").read_text()
+    with pytest.raises(ValueError, match="eval.proposals='video': expected 'visual'"):
+        evaluate(config(tmp, "task=evaluate", "eval.proposals=video", f"paths.output_dir={tmp_path}/bad"))
+    with pytest.raises(ValueError, match="eval.proposals_noise_std=0.01: .*with eval.proposals=truth"):
+        evaluate(config(tmp, "task=evaluate", "eval.proposals_noise_std=0.01", f"paths.output_dir={tmp_path}/bad"))
+    assert not (tmp_path / "bad").exists()  # refused before anything is written
+
+
 def test_report_gathers_a_folder_of_evaluations(tiny):
     tmp, result = tiny
     out = report(config(tmp, "task=report", f"task.dir={tmp}/run/evaluate", f"paths.output_dir={tmp}/report"))

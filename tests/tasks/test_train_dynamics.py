@@ -116,6 +116,38 @@ def test_gradient_agreement_by_window_start_is_the_per_window_numbers_and_bad_st
     assert json.loads((tmp / "run/metrics.json").read_text())["param_gradient_agreement/gravity"] == shares  # refused before writing anything
 
 
+def test_truth_proposals_need_no_video_or_visual_prior_and_the_inference_module_says_it_trained_on_them(trained):
+    """task=export_proposals task.source=truth: the recorded particles plus Gaussian noise of
+    task.noise_std metres, for the frames the inference windows read, on data without video; the
+    inference module trains on them and its metrics say so. Bad options are refused by name."""
+    from vgpl.data.proposals import read_proposals
+    from vgpl.tasks.train_inference import train_inference
+    from vgpl.tasks.train_visual import export_proposals
+
+    tmp, _ = trained
+    with pytest.raises(ValueError, match="task.source='video': expected 'visual'.*or 'truth'"):
+        export_proposals(config(tmp, "task=export_proposals", "task.source=video"))
+    with pytest.raises(ValueError, match="task.noise_std=0.01: .*with task.source=truth"):
+        export_proposals(config(tmp, "task=export_proposals", "task.noise_std=0.01"))  # the visual prior's proposals get no noise
+    window = ["model.inference.window_span=5", "model.inference.observed=6", "model.inference.net.horizon=1"]  # short windows: a fast test
+    out = export_proposals(config(tmp, "task=export_proposals", "task.source=truth", "task.noise_std=0.01", *window))
+    noises = []
+    for split in ("train", "test"):
+        p, r = read_proposals(out[split]), load_split(tmp / "data", "rigid_fall", split)
+        assert p.positions.shape[1] == 11 and torch.equal(p.rollout_ids, r.rollout_ids)  # windows start in frames 0..5, observe 6
+        noise = p.positions - r.positions[:, :11]
+        assert float(noise.std()) == pytest.approx(0.01, rel=0.03) and abs(float(noise.mean())) < 5e-4
+        probs = p.logits.softmax(-1)
+        assert torch.equal(probs.argmax(-1), r.instance.expand(*probs.shape[:2], -1)) and float(probs.max(-1).values.min()) > 0.9999
+        assert p.attrs["source"] == "truth" and p.attrs["noise_std"] == 0.01
+        noises.append(noise[:1])
+    assert not torch.allclose(noises[0], noises[1])  # each split draws its own noise
+    result = train_inference(config(tmp, "task=train_inference", *window, "model.inference.net.width=16", "trainer.limit_train_batches=1",
+                                    "trainer.limit_val_batches=1"))
+    assert result["proposals_source"] == "truth" and result["proposals_noise_std"] == 0.01 and result["steps"] == 1
+    assert 0 <= result["val/param_mae_pct"] <= 100
+
+
 def test_reloaded_checkpoint_predicts_bit_for_bit(trained):
     _, result = trained
     a, _ = load_dynamics(result["checkpoint"])

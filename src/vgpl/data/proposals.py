@@ -2,7 +2,7 @@
 
 File (one per split, written atomically): positions float32 [R, T, N, 3] (metres), grouping
 logits float32 [R, T, N, M], rollout_ids int64 [R]; attrs: env, split, visual_checkpoint,
-format_version.
+source ("visual", or "truth" for ``truth_proposals``), noise_std (metres), format_version.
 """
 
 from __future__ import annotations
@@ -19,6 +19,7 @@ from tqdm.auto import tqdm
 from vgpl.data.schema import DatasetError
 
 PROPOSALS_VERSION = 1
+TRUTH_LOGIT = 20.0  # the true instance's logit in truth_proposals (0 elsewhere): softmax > 0.9999 on it
 
 
 @dataclass
@@ -55,6 +56,24 @@ def propose_videos(model, images: torch.Tensor, batch_size: int = 64, progress: 
             else:
                 pos[i, s + f - 1], logits[i, s + f - 1] = pi[-1], gi[-1]
     return pos, logits
+
+
+def truth_proposals(positions: torch.Tensor, instance: torch.Tensor, n_instances: int, noise_std: float = 0.0,
+                    generator: torch.Generator | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+    """The recorded particles as proposals: what a perfect visual prior would give, or, with
+    ``noise_std`` > 0, one whose every coordinate in every frame is off by independent Gaussian
+    noise of that std (metres). Not the paper: a diagnostic that tells the errors of the visual
+    stage from those of the inference module (README, Design).
+
+    Args: positions [R, T, N, 3], instance [N] (ids < n_instances). Returns positions [R, T, N, 3],
+    logits [R, T, N, M] (TRUTH_LOGIT on the true instance, 0 on the others).
+    """
+    if noise_std < 0:
+        raise ValueError(f"noise_std={noise_std}: expected a standard deviation >= 0 (metres)")
+    noise = torch.randn(positions.shape, generator=generator, dtype=positions.dtype) * noise_std if noise_std > 0 else 0.0
+    onehot = torch.nn.functional.one_hot(instance.long(), n_instances).to(positions.dtype)
+    logits = (TRUTH_LOGIT * onehot).expand(*positions.shape[:2], *onehot.shape).clone()
+    return positions + noise, logits
 
 
 def write_proposals(path: str | Path, proposals: Proposals) -> Path:

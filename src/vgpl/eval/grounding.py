@@ -7,7 +7,7 @@ from dataclasses import dataclass, field
 
 import torch
 
-from vgpl.data.proposals import propose_videos
+from vgpl.data.proposals import propose_videos, truth_proposals
 from vgpl.data.trajectories import Rollouts
 from vgpl.eval.metrics import correct_rigidness_prob, param_error_pct, position_mse_x1e4
 from vgpl.eval.rollout import future_mse, rollout
@@ -40,16 +40,19 @@ def _infer_in_chunks(inference, proposals, logits, kinematic, chunk: int, **flag
 @torch.no_grad()
 def evaluate_grounding(dynamics, visual, inference, scene, test: Rollouts, ablation, observed: int = 10, n_steps: int = 20,
                        max_observed: int = 20, start_frame: int = 0, seed: int = 0, chunk: int = 8,
-                       curve_rollouts: int | None = None) -> GroundingResult:
+                       curve_rollouts: int | None = None, truth_noise_std: float = 0.0) -> GroundingResult:
     """Infer from ``observed`` frames of each test video (from ``start_frame``), roll ``n_steps`` on.
     The inference module runs on ``chunk`` videos at a time (bounded memory; same numbers).
+    ``visual=None`` replaces the visual prior by the recorded particles plus ``truth_noise_std``
+    metres of Gaussian noise (``truth_proposals``, a diagnostic: no video is read).
 
     ``ablation`` has booleans rigidness, refinement, params. The rigidness curve is measured for
     T = 1 .. ``max_observed`` when the ablation infers rigidness, on the first ``curve_rollouts``
     test videos (None: all); the probability at T = ``observed`` is reported on all of them.
     """
     for m in (dynamics, visual, inference):
-        m.eval()
+        if m is not None:
+            m.eval()
     kinematic = torch.as_tensor(scene.kinematic)
     movable = ~kinematic
     h = dynamics.hparams.history
@@ -61,7 +64,12 @@ def evaluate_grounding(dynamics, visual, inference, scene, test: Rollouts, ablat
     if curve_rollouts is not None and curve_rollouts < 1:
         raise ValueError(f"eval.curve_rollouts={curve_rollouts}: expected at least 1 test video, or null for all")
     t_max = min(max(observed, max_observed), n_frames - start_frame)
-    proposals, logits = observed_proposals(visual, test.images, start_frame, t_max)
+    if visual is None:  # a perfect visual prior, or a noisy one (eval.proposals=truth)
+        noise = torch.Generator().manual_seed(seed + 1)
+        proposals, logits = truth_proposals(test.positions[:, start_frame : start_frame + t_max], test.instance, int(test.rigid.shape[0]),
+                                            truth_noise_std, noise)
+    else:
+        proposals, logits = observed_proposals(visual, test.images, start_frame, t_max)
     seen = slice(start_frame, start_frame + observed)
     truth_seen = test.positions[:, seen]
     gen = torch.Generator().manual_seed(seed)

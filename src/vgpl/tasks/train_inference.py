@@ -32,6 +32,11 @@ def train_inference(cfg: DictConfig) -> dict:
     dynamics, _ = load_stage(stage_checkpoint(cfg, "dynamics"), DynamicsPrior, env=scene.name)
     dm = GroundingDataModule(cfg.data.root, scene, spec.observed, spec.net.horizon, spec.batch_size, cfg.env.get("start_frame", 0), spec.window_stride, spec.get("window_span"))
     dm.setup()
+    source = {"proposals_source": str(dm.train_proposals.attrs.get("source", "visual")),
+              "proposals_noise_std": float(dm.train_proposals.attrs.get("noise_std", 0.0))}
+    if source["proposals_source"] != "visual":
+        log.warning("training on %s proposals (noise std %g m, task=export_proposals task.source=truth): a diagnostic, not the paper's VGPL",
+                    source["proposals_source"], source["proposals_noise_std"])
     model: InferenceModule = hydra.utils.instantiate(
         spec.net, _convert_="all", param_low=scene.param_low.tolist(), param_high=scene.param_high.tolist(),
         n_particles=scene.n_particles, n_instances=scene.n_instances, radius=cfg.env.graph_radius, rigidness=bool(cfg.ablation.rigidness),
@@ -42,7 +47,7 @@ def train_inference(cfg: DictConfig) -> dict:
     trainer, last = fit(cfg, stage, spec, model, dm)
     if not trainer.is_global_zero:  # under DDP rank 0 alone evaluates and writes
         return {"env": scene.name, "stage": stage, "checkpoint": str(last)}
-    result = {"env": scene.name, "stage": stage, "checkpoint": str(last), **stopping(trainer),
+    result = {"env": scene.name, "stage": stage, "checkpoint": str(last), **source, **stopping(trainer),
               **{k: float(v) for k, v in trainer.callback_metrics.items() if k.startswith("val/")}}
     out = Path(cfg.paths.output_dir)
     out.mkdir(parents=True, exist_ok=True)

@@ -1,5 +1,6 @@
 """task=train_visual: train the VisualPrior on rendered video; task=export_proposals: run it over
-every video with the paper's sliding window and write the proposals of each split to HDF5."""
+every video with the paper's sliding window and write the proposals of each split to HDF5
+(``task.source=truth`` writes the recorded particles instead, a perfect visual prior for diagnosis)."""
 
 from __future__ import annotations
 
@@ -13,8 +14,9 @@ from omegaconf import DictConfig
 
 from vgpl.checkpoint import load_stage, scene_of
 from vgpl.data.grounding import proposals_path
-from vgpl.data.proposals import Proposals, propose_videos, write_proposals
+from vgpl.data.proposals import Proposals, propose_videos, truth_proposals, write_proposals
 from vgpl.data.shard import read_first_rollouts
+from vgpl.data.trajectories import load_split
 from vgpl.data.video import VideoDataModule
 from vgpl.models.visual_prior import VisualPrior
 from vgpl.tasks.stage import fit, setup_run, stage_checkpoint, stopping
@@ -62,7 +64,19 @@ def export_split(model: VisualPrior, root: str, env: str, split: str, checkpoint
     for _, shard in read_first_rollouts(files, max_rollouts, images=True, frames=max_frames):
         p, g = propose_videos(model, torch.as_tensor(shard.images), progress=progress)
         positions.append(p), logits.append(g), ids.append(torch.as_tensor(shard.rollout_ids))
-    prop = Proposals(torch.cat(positions), torch.cat(logits), torch.cat(ids), {"env": env, "split": split, "visual_checkpoint": checkpoint})
+    prop = Proposals(torch.cat(positions), torch.cat(logits), torch.cat(ids),
+                     {"env": env, "split": split, "visual_checkpoint": checkpoint, "source": "visual", "noise_std": 0.0})
+    return write_proposals(proposals_path(root, env, split), prop)
+
+
+def export_truth_split(root: str, env: str, split: str, noise_std: float, seed: int, max_rollouts: int | None = None,
+                       max_frames: int | None = None) -> Path:
+    """``truth_proposals`` of the first ``max_frames`` frames (None: all) of the first
+    ``max_rollouts`` rollouts of a split; needs no video. The noise is drawn from ``seed``."""
+    r = load_split(root, env, split, max_rollouts=max_rollouts)
+    generator = torch.Generator().manual_seed(seed)
+    pos, logits = truth_proposals(r.positions[:, :max_frames], r.instance, int(r.rigid.shape[0]), noise_std, generator)
+    prop = Proposals(pos, logits, r.rollout_ids, {"env": env, "split": split, "visual_checkpoint": "none", "source": "truth", "noise_std": noise_std})
     return write_proposals(proposals_path(root, env, split), prop)
 
 
@@ -76,14 +90,30 @@ def proposal_frames(cfg: DictConfig) -> int | None:
 
 def export_proposals(cfg: DictConfig) -> dict:
     """Proposals of the train split (the inference module's training data) and of the test split
-    (its validation data), for the frames the inference module reads (``proposal_frames``)."""
+    (its validation data), for the frames the inference module reads (``proposal_frames``).
+
+    ``task.source``: ``visual`` (the VisualPrior's checkpoint over each video) or ``truth`` (the
+    recorded particles plus ``task.noise_std`` metres of Gaussian noise; no video or visual prior
+    needed). ``task=evaluate`` always proposes the test videos with the visual prior."""
+    task = cfg.get("task") or {}
+    source, noise_std = task.get("source", "visual"), float(task.get("noise_std", 0.0))
+    if source not in ("visual", "truth"):
+        raise ValueError(f"task.source={source!r}: expected 'visual' (the VisualPrior over each video) or 'truth' (the recorded particles, a diagnostic)")
+    if noise_std < 0 or (noise_std > 0 and source != "truth"):
+        raise ValueError(f"task.noise_std={noise_std}: expected 0, or a std > 0 (metres) with task.source=truth")
     setup_run(cfg)
     scene = scene_of(cfg)
-    ckpt = stage_checkpoint(cfg, "visual")
-    model, _ = load_stage(ckpt, VisualPrior, env=scene.name, n_particles=scene.n_particles)
     frames = proposal_frames(cfg)
+    model, ckpt = None, None
+    if source == "visual":
+        ckpt = stage_checkpoint(cfg, "visual")
+        model, _ = load_stage(ckpt, VisualPrior, env=scene.name, n_particles=scene.n_particles)
     paths = {}
-    for split, limit in (("train", cfg.model.inference.get("max_rollouts")), ("test", cfg.eval.get("max_rollouts"))):
-        paths[split] = str(export_split(model, cfg.data.root, scene.name, split, str(ckpt), limit, cfg.data.progress, frames))
-        log.info("proposals of the %s split (%s frames): %s", split, "all" if frames is None else frames, paths[split])
-    return {"env": scene.name, **paths}
+    for i, (split, limit) in enumerate((("train", cfg.model.inference.get("max_rollouts")), ("test", cfg.eval.get("max_rollouts")))):
+        if source == "visual":
+            path = export_split(model, cfg.data.root, scene.name, split, str(ckpt), limit, cfg.data.progress, frames)
+        else:
+            path = export_truth_split(cfg.data.root, scene.name, split, noise_std, cfg.seed + i, limit, frames)
+        paths[split] = str(path)
+        log.info("%s proposals of the %s split (%s frames): %s", source, split, "all" if frames is None else frames, paths[split])
+    return {"env": scene.name, "source": source, "noise_std": noise_std, **paths}
