@@ -72,7 +72,7 @@ def evaluate(cfg: DictConfig) -> dict:
                                 curve_rollouts=cfg.eval.get("curve_rollouts"), truth_noise_std=noise_std)
     record = {"env": env, "method": "vgpl", "ablation": cfg.ablation.name, "n_test": int(test.positions.shape[0]),
               "observed": observed, "proposals": source, "proposals_noise_std": noise_std,
-              "checkpoints": {k: str(v) for k, v in paths.items()}, **result.metrics, "rigidness_curve": result.rigidness_curve}
+              "checkpoints": {k: str(v) for k, v in paths.items() if v is not None}, **result.metrics, "rigidness_curve": result.rigidness_curve}
     out = Path(cfg.paths.output_dir)
     out.mkdir(parents=True, exist_ok=True)
     (out / "metrics.json").write_text(json.dumps(record, indent=1))
