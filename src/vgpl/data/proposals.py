@@ -58,6 +58,18 @@ def propose_videos(model, images: torch.Tensor, batch_size: int = 64, progress: 
     return pos, logits
 
 
+def proposal_source(source: str, noise_std: float, source_option: str, noise_option: str) -> tuple[str, float]:
+    """Check where proposals come from, as the options ``source_option`` / ``noise_option`` give it:
+    ``visual`` (the visual prior's, no noise) or ``truth`` (``truth_proposals``, noise >= 0).
+    Returns (source, noise_std); a bad value raises ValueError naming its option."""
+    if source not in ("visual", "truth"):
+        raise ValueError(f"{source_option}={source!r}: expected 'visual' (the visual prior's proposals) or 'truth' (the recorded particles, a diagnostic)")
+    noise_std = float(noise_std)
+    if noise_std < 0 or (noise_std > 0 and source != "truth"):
+        raise ValueError(f"{noise_option}={noise_std}: expected 0, or a std > 0 (metres) with {source_option}=truth")
+    return source, noise_std
+
+
 def truth_proposals(positions: torch.Tensor, instance: torch.Tensor, n_instances: int, noise_std: float = 0.0,
                     generator: torch.Generator | None = None) -> tuple[torch.Tensor, torch.Tensor]:
     """The recorded particles as proposals: what a perfect visual prior would give, or, with

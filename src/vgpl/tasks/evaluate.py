@@ -12,6 +12,7 @@ from omegaconf import DictConfig
 from torch.utils.tensorboard import SummaryWriter
 
 from vgpl.checkpoint import load_stage, scene_of
+from vgpl.data.proposals import proposal_source
 from vgpl.data.trajectories import load_split
 from vgpl.eval import figures
 from vgpl.eval.grounding import evaluate_grounding
@@ -51,11 +52,8 @@ def evaluate(cfg: DictConfig) -> dict:
         return evaluate_baseline(cfg)
     if cfg.model.name != "vgpl":
         raise ValueError(f"model.name='{cfg.model.name}': expected vgpl or densephysnet")
-    source, noise_std = cfg.eval.get("proposals", "visual"), float(cfg.eval.get("proposals_noise_std", 0.0))
-    if source not in ("visual", "truth"):
-        raise ValueError(f"eval.proposals={source!r}: expected 'visual' (the visual prior over the test videos) or 'truth' (the recorded particles, a diagnostic)")
-    if noise_std < 0 or (noise_std > 0 and source != "truth"):
-        raise ValueError(f"eval.proposals_noise_std={noise_std}: expected 0, or a std > 0 (metres) with eval.proposals=truth")
+    source, noise_std = proposal_source(cfg.eval.get("proposals", "visual"), cfg.eval.get("proposals_noise_std", 0.0),
+                                        "eval.proposals", "eval.proposals_noise_std")
     scene = scene_of(cfg)
     env, n = scene.name, scene.n_particles
     truth = source == "truth"

@@ -14,7 +14,7 @@ from omegaconf import DictConfig
 
 from vgpl.checkpoint import load_stage, scene_of
 from vgpl.data.grounding import proposals_path
-from vgpl.data.proposals import Proposals, propose_videos, truth_proposals, write_proposals
+from vgpl.data.proposals import Proposals, proposal_source, propose_videos, truth_proposals, write_proposals
 from vgpl.data.shard import read_first_rollouts
 from vgpl.data.trajectories import load_split
 from vgpl.data.video import VideoDataModule
@@ -94,13 +94,9 @@ def export_proposals(cfg: DictConfig) -> dict:
 
     ``task.source``: ``visual`` (the VisualPrior's checkpoint over each video) or ``truth`` (the
     recorded particles plus ``task.noise_std`` metres of Gaussian noise; no video or visual prior
-    needed). ``task=evaluate`` always proposes the test videos with the visual prior."""
+    needed). ``task=evaluate`` proposes its test videos itself (``eval.proposals`` chooses how)."""
     task = cfg.get("task") or {}
-    source, noise_std = task.get("source", "visual"), float(task.get("noise_std", 0.0))
-    if source not in ("visual", "truth"):
-        raise ValueError(f"task.source={source!r}: expected 'visual' (the VisualPrior over each video) or 'truth' (the recorded particles, a diagnostic)")
-    if noise_std < 0 or (noise_std > 0 and source != "truth"):
-        raise ValueError(f"task.noise_std={noise_std}: expected 0, or a std > 0 (metres) with task.source=truth")
+    source, noise_std = proposal_source(task.get("source", "visual"), task.get("noise_std", 0.0), "task.source", "task.noise_std")
     setup_run(cfg)
     scene = scene_of(cfg)
     frames = proposal_frames(cfg)
