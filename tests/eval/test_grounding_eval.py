@@ -77,3 +77,11 @@ def test_an_empty_curve_subset_is_refused():
     models, _ = _setup()
     with pytest.raises(ValueError, match="eval.curve_rollouts=0"):
         evaluate_grounding(*models, _ablation(), curve_rollouts=0, **KWARGS)
+
+
+def test_the_record_holds_the_constant_guess_on_the_same_videos():
+    (dyn, visual, inf, scene, test), r = _setup()
+    test = dataclasses.replace(test, params=torch.tensor([[-15.0], [-12.5], [-10.0], [-7.5], [-5.0]]))
+    metrics = evaluate_grounding(dyn, visual, inf, scene, test, _ablation(), **KWARGS).metrics
+    assert metrics["midpoint_param_mae_pct"] == pytest.approx(30.0)  # 50, 25, 0, 25, 50 % of the range
+    assert metrics["midpoint_param_mae_pct_std"] == pytest.approx(torch.tensor([50.0, 25, 0, 25, 50]).std().item())

@@ -51,6 +51,8 @@ def test_inferred_parameters_beat_the_range_midpoint(tiny):
     test = load_split(tmp / "data/quick", "rigid_fall", "test")
     midpoint = ((test.params - (test.param_low + test.param_high) / 2).abs() / (test.param_high - test.param_low) * 100).mean()
     assert full["param_mae_pct"] < float(midpoint)
+    assert full["midpoint_param_mae_pct"] == pytest.approx(float(midpoint), rel=1e-5)  # the record's floor, the same videos
+    assert "| range midpoint (constant guess) |" in (tmp / "run/report.md").read_text()
     assert full["refine_mse_x1e4_after"] < full["refine_mse_x1e4_before"]
     assert 0 < full["future_mse_x1e4@1"] < full["future_mse_x1e4@10"]
 

@@ -9,7 +9,7 @@ import torch
 
 from vgpl.data.proposals import propose_videos, truth_proposals
 from vgpl.data.trajectories import Rollouts
-from vgpl.eval.metrics import correct_rigidness_prob, param_error_pct, position_mse_x1e4
+from vgpl.eval.metrics import correct_rigidness_prob, midpoint_error_pct, param_error_pct, position_mse_x1e4
 from vgpl.eval.rollout import future_mse, rollout
 
 
@@ -81,6 +81,8 @@ def evaluate_grounding(dynamics, visual, inference, scene, test: Rollouts, ablat
     # Table 1: parameters
     err = param_error_pct(out["params"], test.params, test.param_low, test.param_high).mean(1)
     metrics["param_mae_pct"], metrics["param_mae_pct_std"] = float(err.mean()), float(err.std())
+    floor = midpoint_error_pct(test.params, test.param_low, test.param_high).mean(1)  # the same videos, a constant guess
+    metrics["midpoint_param_mae_pct"], metrics["midpoint_param_mae_pct_std"] = float(floor.mean()), float(floor.std())
     # refinement
     metrics["refine_mse_x1e4_before"] = position_mse_x1e4(proposals[:, :observed], truth_seen, movable)
     refined = out["positions"] if ablation.refinement else _infer_in_chunks(inference, proposals[:, :observed], logits[:, :observed], kinematic, chunk)["positions"]

@@ -11,6 +11,12 @@ def param_error_pct(pred: torch.Tensor, truth: torch.Tensor, low: torch.Tensor, 
     return (pred - truth).abs() / (high - low) * 100.0
 
 
+def midpoint_error_pct(truth: torch.Tensor, low: torch.Tensor, high: torch.Tensor) -> torch.Tensor:
+    """The error of guessing the middle of each parameter's range, % of range, per scene and
+    parameter [B, P] (truth [B, P] physical): the constant predictor any estimate should beat."""
+    return param_error_pct(((low + high) / 2).expand_as(truth), truth, low, high)
+
+
 def position_mse_x1e4(pred: torch.Tensor, truth: torch.Tensor, mask: torch.Tensor | None = None) -> float:
     """Mean squared position error x 1e4 over particles (``mask`` [N] selects), frames, coords."""
     if mask is not None:
