@@ -16,7 +16,7 @@ run() { python run.py env=rigid_fall experiment=standard "$@"; }
 CK=checkpoints/standard/rigid_fall
 run task=generate data.processes=2                                              # with video, 2.7 min (AMD EPYC)
 run task=train_dynamics seed=$SEED ckpt_path=last trainer.max_time=00:00:${PRIOR_MIN}:00 hydra.run.dir=outputs/prior_seed$SEED
-run task=train_visual 'model.visual.trainer.precision=${fast_precision:bf16-mixed}'   # 15 min cap
+run task=train_visual '+model.visual.trainer.precision=${fast_precision:bf16-mixed}'   # 15 min cap
 run task=export_proposals
 common=(task=train_inference threads=1 model.inference.net.trajectory_start=both trainer.limit_val_batches=50
         model.inference.trainer.max_time=00:00:${INF_MIN}:00 ckpt.dynamics=$CK/dynamics/last.ckpt)
