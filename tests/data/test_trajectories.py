@@ -113,3 +113,35 @@ def test_videos_are_read_only_as_far_as_asked(rendered):
     assert torch.equal(three.images, torch.from_numpy(whole[:3])) and torch.equal(three.positions, every.positions[:3])
     first = read_shard(files[1], rollouts=1, frames=4)
     assert first.images.shape[:2] == (1, 4) and np.array_equal(first.images, whole[2:3, :4]) and first.rollout_ids.tolist() == [2]
+
+
+def test_streamed_videos_give_the_same_windows_as_videos_in_memory(rendered):
+    """stream=True leaves the video in its files; every window, also read in a DataLoader worker
+    (which gets a pickled copy with no open files), equals the one cut from the in-memory array."""
+    import dataclasses
+    import pickle
+
+    from torch.utils.data import DataLoader
+
+    from vgpl.data.video import VideoWindows
+
+    memory = load_split(rendered, "mass_rope", "train", images=True, max_rollouts=5)
+    streamed = load_split(rendered, "mass_rope", "train", images=True, max_rollouts=5, stream=True)
+    assert streamed.images.shape == tuple(memory.images.shape) and len(streamed.images) == 5  # 5 of the 6 videos, 3 files
+    assert torch.equal(streamed.images[4, 3], memory.images[4, 3]) and torch.equal(streamed.images[2, 1:5], memory.images[2, 1:5])
+    assert torch.equal(streamed.positions, memory.positions)
+    copy = dataclasses.replace(streamed, images=pickle.loads(pickle.dumps(streamed.images)))  # streamed.images has files open now
+    a, b = VideoWindows(memory, frames=4), VideoWindows(copy, frames=4)
+    assert len(a) == len(b) == 5 * (6 - 4 + 1)
+    for k in range(len(a)):
+        assert torch.equal(a[k]["frames"], b[k]["frames"]) and torch.equal(a[k]["positions"], b[k]["positions"])
+    worker = next(iter(DataLoader(VideoWindows(streamed, frames=4), batch_size=len(a), num_workers=1)))
+    assert torch.equal(worker["frames"], torch.stack([a[k]["frames"] for k in range(len(a))]))
+    with pytest.raises(IndexError, match=r"videos\[rollout, frames\]"):
+        streamed.images[0]
+
+
+def test_streaming_a_split_without_video_names_the_file(dataset):
+    root, _ = dataset
+    with pytest.raises(DatasetError, match=r"train/shard_00000\.h5: key 'images' missing: the dataset was generated with data.render=false"):
+        load_split(root, "mass_rope", "train", images=True, stream=True)

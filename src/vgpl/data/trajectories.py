@@ -18,6 +18,7 @@ from torch.utils.data import DataLoader, Dataset
 
 from vgpl.data.schema import DatasetError
 from vgpl.data.shard import NO_VIDEO, read_first_rollouts
+from vgpl.data.streamed_videos import StreamedVideos
 from vgpl.sim.scene import Scene
 
 
@@ -25,7 +26,7 @@ from vgpl.sim.scene import Scene
 class Rollouts:
     """All rollouts of a split in memory: positions [R, T, N, 3], params [R, P], actions [R, T, A],
     instance [N], rigid [M], param_low/high [P], rollout_ids [R]; images uint8 [R, T, H, W, 3]
-    when loaded with ``images=True``."""
+    when loaded with ``images=True`` (a StreamedVideos read on demand with ``stream=True``)."""
 
     positions: torch.Tensor
     params: torch.Tensor
@@ -36,13 +37,15 @@ class Rollouts:
     param_high: torch.Tensor
     env: str
     rollout_ids: torch.Tensor | None = None
-    images: torch.Tensor | None = None
+    images: torch.Tensor | StreamedVideos | None = None
 
 
-def load_split(root: str | Path, env: str, split: str, images: bool = False, max_rollouts: int | None = None) -> Rollouts:
+def load_split(root: str | Path, env: str, split: str, images: bool = False, max_rollouts: int | None = None,
+               stream: bool = False) -> Rollouts:
     """Read the shards of ``root/env/split`` (validated), in rollout order; the first
     ``max_rollouts`` rollouts only when given (only those are read). Videos are read straight
-    into one array, with no copy per shard."""
+    into one array, with no copy per shard, or with ``stream=True`` left in their files and read
+    window by window (StreamedVideos: memory independent of the split's size)."""
     folder = Path(root) / env / split
     files = sorted(folder.glob("shard_*.h5"))
     if not files:
@@ -53,11 +56,19 @@ def load_split(root: str | Path, env: str, split: str, images: bool = False, max
     order = np.argsort(np.concatenate([s.rollout_ids for s in shards]), kind="stable")
     cat = lambda key: torch.as_tensor(np.concatenate([getattr(s, key) for s in shards])[order])  # noqa: E731
     first = shards[0]
+    counts = [(f, len(s.rollout_ids)) for f, s in read]
+    videos = None if not images else _stream_videos(counts, order) if stream else _read_videos(counts, order)
     return Rollouts(
         cat("positions"), cat("params"), cat("actions"), torch.as_tensor(first.instance), torch.as_tensor(first.rigid),
         torch.as_tensor(np.asarray(first.attrs["param_low"], np.float32)), torch.as_tensor(np.asarray(first.attrs["param_high"], np.float32)),
-        str(first.attrs["env"]), cat("rollout_ids"), _read_videos([(f, len(s.rollout_ids)) for f, s in read], order) if images else None,
+        str(first.attrs["env"]), cat("rollout_ids"), videos,
     )
+
+
+def _stream_videos(files: list[tuple[Path, int]], order: np.ndarray) -> StreamedVideos:
+    """The first n videos of each (shard file, n), left in their files, in rollout order."""
+    in_files = [(path, i) for path, n in files for i in range(n)]
+    return StreamedVideos([in_files[k] for k in order])
 
 
 def _read_videos(files: list[tuple[Path, int]], order: np.ndarray) -> torch.Tensor:

@@ -30,7 +30,7 @@ def train_visual(cfg: DictConfig) -> dict:
     scene = scene_of(cfg)
     spec = cfg.model.visual
     dm = VideoDataModule(cfg.data.root, scene.name, spec.frames, spec.batch_size, cfg.env.get("start_frame", 0), spec.frame_stride,
-                         spec.max_rollouts, cfg.eval.get("max_rollouts"))
+                         spec.max_rollouts, cfg.eval.get("max_rollouts"), stream=bool(spec.get("stream_video", False)))
     dm.setup()
     model: VisualPrior = hydra.utils.instantiate(spec.net, _convert_="all", n_particles=scene.n_particles, n_instances=scene.n_instances, frames=spec.frames)
     model.set_stats(dm.stats)
