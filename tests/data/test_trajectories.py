@@ -123,6 +123,7 @@ def test_streamed_videos_give_the_same_windows_as_videos_in_memory(rendered):
 
     from torch.utils.data import DataLoader
 
+    from vgpl.data.flow_windows import FlowWindows
     from vgpl.data.video import VideoWindows
 
     memory = load_split(rendered, "mass_rope", "train", images=True, max_rollouts=5)
@@ -137,6 +138,9 @@ def test_streamed_videos_give_the_same_windows_as_videos_in_memory(rendered):
         assert torch.equal(a[k]["frames"], b[k]["frames"]) and torch.equal(a[k]["positions"], b[k]["positions"])
     worker = next(iter(DataLoader(VideoWindows(streamed, frames=4), batch_size=len(a), num_workers=1)))
     assert torch.equal(worker["frames"], torch.stack([a[k]["frames"] for k in range(len(a))]))
+    flow_a, flow_b = (FlowWindows(r, make_scene("mass_rope").camera, observed=3, stride=1) for r in (memory, streamed))  # DensePhysNet's
+    assert len(flow_a) == len(flow_b) == 5 * 3  # windows of 3 + 1 frames from frames 0-2
+    assert all(torch.equal(flow_a[k]["frames"], flow_b[k]["frames"]) for k in range(len(flow_a)))
     with pytest.raises(IndexError, match=r"videos\[rollout, frames\]"):
         streamed.images[0]
 

@@ -70,15 +70,15 @@ def _windows(cfg: DictConfig, scene, rollouts, stride: int | None) -> FlowWindow
     return FlowWindows(rollouts, scene.camera, spec.observed, cfg.env.get("start_frame", 0), stride, spec.flow)
 
 
-def _videos(cfg: DictConfig, scene, split: str, max_rollouts):
-    return load_split(cfg.data.root, scene.name, split, images=True, max_rollouts=max_rollouts)
+def _videos(cfg: DictConfig, scene, split: str, max_rollouts, stream: bool = False):
+    return load_split(cfg.data.root, scene.name, split, images=True, max_rollouts=max_rollouts, stream=stream)
 
 
 def train_baseline(cfg: DictConfig) -> dict:
     setup_run(cfg)
     scene = scene_of(cfg)
     spec = cfg.model.densephysnet
-    train_videos = _videos(cfg, scene, "train", spec.get("max_rollouts"))
+    train_videos = _videos(cfg, scene, "train", spec.get("max_rollouts"), bool(spec.get("stream_video", False)))
     train = _windows(cfg, scene, train_videos, spec.window_stride)
     test = _windows(cfg, scene, _videos(cfg, scene, "test", cfg.eval.get("max_rollouts")), None)
     model = hydra.utils.instantiate(spec.net, action_dim=scene.action_dim)
