@@ -92,3 +92,4 @@ def test_the_larger_presets_train_the_visual_prior_on_every_video_streamed(exper
     assert cfg.model.visual.stream_video is stream
     if experiment != "quick":
         assert cfg.model.visual.max_rollouts is None
+    assert cfg.model.densephysnet.stream_video is (experiment == "paper")  # the standard baseline holds its 200 videos
