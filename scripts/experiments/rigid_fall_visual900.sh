@@ -34,7 +34,7 @@ run task=evaluate ablation=full eval.max_rollouts=100 eval.curve_rollouts=8 thre
 wait
 grep -h '"param_mae_pct\|future_mse_x1e4@20\|refine_mse' outputs/visual900_evaluate/metrics.json
 grep -h 'oracle' outputs/mr_oracle/metrics.json
-# then (session 19, beside the test suite): the inference module resumed to the 55-min cap (it stops at the preset's 2 epochs, 1,800 steps)
+# then (session 19, beside the test suite): the inference module resumed to the 55-min cap (max_epochs=3 stops it at 1,800 steps: the resume starts a new epoch)
 run task=train_inference threads=1 model.inference.net.trajectory_start=both trainer.limit_val_batches=50 \
     model.inference.trainer.max_time=00:00:55:00 ckpt.dynamics=$CK/dynamics/last.ckpt ckpt_path=last \
     paths.ckpt_dir=checkpoints/visual900/rigid_fall hydra.run.dir=outputs/visual900_inference_55
