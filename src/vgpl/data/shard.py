@@ -69,6 +69,18 @@ def read_shard(path: str | Path, images: bool = True, rollouts: int | None = Non
 NO_VIDEO = "key 'images' missing: the dataset was generated with data.render=false; the visual stages need video"
 
 
+def video_frame_shape(h: h5py.File, path: Path, expected: tuple | None = None) -> tuple:
+    """The [T, H, W, 3] shape of the open shard ``h``'s video; DatasetError naming ``path`` when
+    it has none, or when its shape is not ``expected`` (the split's first shard's)."""
+    if "images" not in h:
+        raise DatasetError(f"{path}: {NO_VIDEO}")
+    shape = h["images"].shape[1:]
+    if expected is not None and shape != expected:
+        raise DatasetError(f"{path}: 'images' of shape [R, {', '.join(map(str, shape))}], "
+                           f"the split's first shard has [R, {', '.join(map(str, expected))}]")
+    return shape
+
+
 def read_first_rollouts(files: list[Path], max_rollouts: int | None = None, images: bool = False,
                         frames: int | None = None) -> Iterator[tuple[Path, Shard]]:
     """(file, shard) for shard files that hold consecutive rollouts in order, read only as far as

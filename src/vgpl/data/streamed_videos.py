@@ -7,8 +7,7 @@ from pathlib import Path
 import h5py
 import torch
 
-from vgpl.data.schema import DatasetError
-from vgpl.data.shard import NO_VIDEO
+from vgpl.data.shard import video_frame_shape
 
 
 class StreamedVideos:
@@ -27,14 +26,7 @@ class StreamedVideos:
         frame_shape = None
         for path in dict.fromkeys(p for p, _ in sources):  # every file once, in order
             with h5py.File(path, "r") as h:
-                if "images" not in h:
-                    raise DatasetError(f"{path}: {NO_VIDEO}")
-                shape = h["images"].shape[1:]
-            if frame_shape is None:
-                frame_shape = shape
-            elif shape != frame_shape:
-                raise DatasetError(f"{path}: 'images' of shape [R, {', '.join(map(str, shape))}], "
-                                   f"the split's first shard has [R, {', '.join(map(str, frame_shape))}]")
+                frame_shape = video_frame_shape(h, path, frame_shape)
         self.shape = (len(sources), *frame_shape)
         self._files: dict[Path, h5py.File] = {}
 
@@ -52,8 +44,3 @@ class StreamedVideos:
 
     def __getstate__(self) -> dict:
         return {**self.__dict__, "_files": {}}  # open h5py files cannot cross into worker processes
-
-    def close(self) -> None:
-        for f in self._files.values():
-            f.close()
-        self._files.clear()

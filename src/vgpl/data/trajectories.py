@@ -17,7 +17,7 @@ import torch
 from torch.utils.data import DataLoader, Dataset
 
 from vgpl.data.schema import DatasetError
-from vgpl.data.shard import NO_VIDEO, read_first_rollouts
+from vgpl.data.shard import read_first_rollouts, video_frame_shape
 from vgpl.data.streamed_videos import StreamedVideos
 from vgpl.sim.scene import Scene
 
@@ -77,13 +77,9 @@ def _read_videos(files: list[tuple[Path, int]], order: np.ndarray) -> torch.Tens
     out, start = None, 0
     for path, n in files:
         with h5py.File(path, "r") as h:
-            if "images" not in h:
-                raise DatasetError(f"{path}: {NO_VIDEO}")
-            shape = h["images"].shape[1:]
+            shape = video_frame_shape(h, path, None if out is None else out.shape[1:])
             if out is None:
                 out = np.empty((sum(k for _, k in files), *shape), np.uint8)
-            elif shape != out.shape[1:]:
-                raise DatasetError(f"{path}: 'images' of shape [R, {', '.join(map(str, shape))}], the split's first shard has [R, {', '.join(map(str, out.shape[1:]))}]")
             h["images"].read_direct(out, np.s_[:n], np.s_[start : start + n])
         start += n
     if not np.array_equal(order, np.arange(len(order))):
