@@ -7,6 +7,7 @@ import pytest
 import torch
 
 from tests.conftest import simulate
+from vgpl.sim.envs import make_scene
 from vgpl.sim.fluid import density
 from vgpl.sim.neighbors import radius_pairs
 from vgpl.sim.vector import PairIndex
@@ -107,6 +108,40 @@ def test_stiffer_rope_stretches_less():
     assert stretch[0.25] > stretch[0.6] > stretch[1.2] > 0
     assert stretch[0.25] - stretch[1.2] > 0.05  # measurably: more than 5% of the rope's length
     assert scene_rest.n_particles == 95
+
+
+def sphere_height(scene, tr) -> np.ndarray:
+    """[T] mean height of the sphere's particles in rollout 0."""
+    return tr.positions[0, :, : scene.n_sphere, 1].mean(-1).numpy()
+
+
+def test_rope_started_at_equilibrium_hangs_and_off_it_bounces_at_its_own_frequency():
+    """start_stretch=(1, 1): the sphere hangs at its static sag (moves < 3 mm in 10 frames, before the
+    actuator's walk builds up). start_stretch=(0, 0), released at rest length: it falls by about
+    twice the sag, and the stiff rope's first bounce comes sooner, by about sqrt(1.2 / 0.25) = 2.2
+    (period ~ sqrt(sag / g)), which is what makes the stiffness visible in the motion."""
+    scene, still = simulate("mass_rope", seeds=(3,), params=[0.25], n_steps=12, start_stretch=(1.0, 1.0))
+    assert float(np.ptp(sphere_height(scene, still)[:10])) < 3e-3
+    bottom_frame, drop = {}, {}
+    for k in (0.25, 1.2):
+        scene, tr = simulate("mass_rope", seeds=(3,), params=[k], n_steps=60, start_stretch=(0.0, 0.0))
+        y = sphere_height(scene, tr)
+        bottom_frame[k] = int(np.argmin(y[:40]))
+        drop[k] = float(y[0] - y.min())
+        sag = float(scene.static_stretch(k).sum())
+        assert 1.6 * sag < drop[k] < 2.4 * sag
+    assert bottom_frame[0.25] > 1.6 * bottom_frame[1.2] > 0
+
+
+def test_start_stretch_keeps_the_actuator_walk_and_is_checked():
+    """The stretch factor is drawn after the actuator's walk: one seed drives the pin the same way
+    whatever the start; a factor range outside [0, 2] is refused by name."""
+    _, a = simulate("mass_rope", seeds=(7,), n_steps=30)
+    _, b = simulate("mass_rope", seeds=(7,), n_steps=30, start_stretch=(1.0, 1.0))
+    assert torch.equal(a.actions, b.actions)
+    assert not torch.allclose(a.positions[0, 0], b.positions[0, 0])
+    with pytest.raises(ValueError, match=r"start_stretch=\[0.5, 2.5\].*0 <= low <= high <= 2"):
+        make_scene("mass_rope", start_stretch=(0.5, 2.5))
 
 
 def test_pin_follows_the_actuator_and_sphere_hangs_below():

@@ -5,6 +5,12 @@ accelerations.
 Parameter: rope stiffness in [0.25, 1.2]; each segment's XPBD compliance is
 ``base_compliance / stiffness``, so a stiffer rope stretches proportionally less under the same
 load. Instance 0 = sphere (rigid), 1 = rope. Action: pin position and velocity [T, 6].
+
+The rope starts at ``u`` times its static stretch, ``u ~ U(start_stretch)`` (default [0, 2]: from
+its rest length to twice its sag), at rest, so the sphere bounces about its equilibrium at the
+rope's own frequency. With ``start_stretch=(1, 1)`` every rope starts at equilibrium, its stretch is
+a function of the stiffness, and a model of the motion can read the stiffness off the positions and
+ignore its stiffness input: the learned prior then gives no gradient in stiffness (README: Design).
 """
 
 from __future__ import annotations
@@ -42,6 +48,7 @@ class MassRope(Scene):
         pin_noise: float = 0.1,
         pin_spring: float = 0.1,
         pin_damping: float = 0.05,
+        start_stretch=(0.0, 2.0),
     ) -> None:
         super().__init__(list(param_low), list(param_high), n_steps, dt, substeps, iterations, camera)
         ball = lattice((5, 5, 5), sphere_spacing)
@@ -51,6 +58,10 @@ class MassRope(Scene):
         self.pin = np.asarray(pin, dtype=np.float64)
         self.rope_spacing, self.base_compliance = rope_spacing, base_compliance
         self.pin_walk = (pin_noise, pin_spring, pin_damping)
+        self.start_stretch = tuple(float(u) for u in start_stretch)
+        if len(self.start_stretch) != 2 or not 0.0 <= self.start_stretch[0] <= self.start_stretch[1] <= 2.0:
+            raise ValueError(f"MassRope: start_stretch={list(start_stretch)}, expected [low, high] with 0 <= low <= high <= 2 "
+                             "(multiples of the static stretch; above 2 the rope would be compressed as it bounces)")
         self.top = int(np.argmin(np.abs(self.sphere - [0.0, self.sphere[:, 1].max(), 0.0]).sum(-1)))  # top centre: the rope's knot
         # rope particles follow the sphere: rope[0] is pinned, rope[-1] is tied to sphere[top]
         self.instance = np.concatenate([np.zeros(self.n_sphere, np.int64), np.ones(rope_particles, np.int64)])
@@ -71,12 +82,14 @@ class MassRope(Scene):
 
     def sample(self, rng: np.random.Generator, params=None) -> RolloutSample:
         params = self.sample_params(rng, params)
-        seg = self.chain_rest + self.static_stretch(float(params[0]))
+        pin_x, vel_x = random_walk_1d(rng, self.n_steps, self.dt, *self.pin_walk)
+        pin_z, vel_z = random_walk_1d(rng, self.n_steps, self.dt, *self.pin_walk)
+        low, high = self.start_stretch
+        u = rng.uniform(low, high) if high > low else low  # drawn after the pin's walk: same seed, same walk as with (1, 1)
+        seg = self.chain_rest + u * self.static_stretch(float(params[0]))
         depth = np.concatenate([[0.0], np.cumsum(seg)])  # [K+1] distance below the pin of each chain point
         rope = self.pin + np.outer(depth[: self.n_rope], [0.0, -1.0, 0.0])
         sphere = self.sphere + self.pin - np.array([0.0, depth[-1], 0.0]) - self.sphere[self.top]
-        pin_x, vel_x = random_walk_1d(rng, self.n_steps, self.dt, *self.pin_walk)
-        pin_z, vel_z = random_walk_1d(rng, self.n_steps, self.dt, *self.pin_walk)
         actions = np.zeros((self.n_steps, 6), dtype=np.float32)
         actions[:, 0:3] = self.pin + np.stack([pin_x, np.zeros_like(pin_x), pin_z], -1)
         actions[:, 3], actions[:, 5] = vel_x, vel_z
