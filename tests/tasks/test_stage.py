@@ -4,13 +4,18 @@ trainer.max_time cut short (their numbers depend on the machine's speed)."""
 from __future__ import annotations
 
 import time
+from pathlib import Path
 
 import lightning as L
+import pytest
 import torch
+from hydra import compose, initialize_config_dir
 from torch.utils.data import DataLoader, TensorDataset
 
 from vgpl.tasks.pipeline import training_summary
-from vgpl.tasks.stage import stopping
+from vgpl.tasks.stage import stopping, trainer_kwargs
+
+REPO = Path(__file__).resolve().parents[2]
 
 
 class SlowRegression(L.LightningModule):
@@ -30,10 +35,10 @@ class SlowRegression(L.LightningModule):
         return torch.optim.SGD(self.parameters(), lr=0.1)
 
 
-def fit(delay: float, **limits) -> L.Trainer:
-    data = DataLoader(TensorDataset(torch.randn(64, 2), torch.randn(64, 1)), batch_size=4)
+def fit(delay: float, ckpt_path: str | None = None, **limits) -> L.Trainer:
+    data = DataLoader(TensorDataset(torch.randn(64, 2), torch.randn(64, 1)), batch_size=4)  # 16 steps an epoch
     trainer = L.Trainer(logger=False, enable_checkpointing=False, enable_progress_bar=False, enable_model_summary=False, **limits)
-    trainer.fit(SlowRegression(delay), data)
+    trainer.fit(SlowRegression(delay), data, ckpt_path=ckpt_path)
     return trainer
 
 
@@ -57,3 +62,27 @@ def test_the_report_lists_every_training_and_flags_the_time_capped_one():
     text = training_summary(trained, {"train_dynamics": 203.4, "train_inference/full": 120.0})
     assert "- train_dynamics: 1200 of 1200 steps, 203 s\n" in text
     assert "- train_inference/full: 97 of 170 steps, 120 s **stopped by trainer.max_time**" in text
+
+
+@pytest.mark.parametrize("max_epochs,reaches_max_steps", [(1, False), (-1, True)])
+def test_a_fit_resumed_after_a_time_stop_reaches_max_steps_only_without_an_epoch_cap(tmp_path, max_epochs, reaches_max_steps):
+    """Lightning counts the epoch a max_time stop cut as done: the resumed fit starts the next one.
+    With an epoch cap it can end at once (session 19: an inference run resumed to 1,800 of its
+    2,700 steps); budgeted in steps (max_epochs=-1) it goes on to max_steps."""
+    cut = fit(0.05, max_steps=40, max_epochs=max_epochs, max_time={"seconds": 0.5})
+    assert stopping(cut)["stopped_by"] == "max_time" and cut.global_step < 16  # inside the first epoch
+    cut.save_checkpoint(tmp_path / "last.ckpt")
+    resumed = stopping(fit(0.0, str(tmp_path / "last.ckpt"), max_steps=40, max_epochs=max_epochs))
+    assert (resumed["steps"] == 40) is reaches_max_steps
+    assert resumed["stopped_by"] == ("max_steps" if reaches_max_steps else "max_epochs")
+
+
+@pytest.mark.parametrize("stage", ["visual", "inference", "densephysnet"])
+def test_the_standard_stages_after_the_prior_are_budgeted_in_steps(stage):
+    """Their trainers set max_steps and max_time; the top-level max_epochs (3, the prior's) must not
+    apply to them, or a resumed run ends early (test above)."""
+    with initialize_config_dir(str(REPO / "conf"), version_base="1.3"):
+        cfg = compose("config", overrides=["experiment=standard"])
+    kwargs = trainer_kwargs(cfg, cfg.model[stage])
+    assert kwargs["max_epochs"] == -1 and kwargs["max_steps"] > 0 and kwargs["max_time"]
+    assert trainer_kwargs(cfg, cfg.model.dynamics)["max_epochs"] == 3

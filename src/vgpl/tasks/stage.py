@@ -33,6 +33,12 @@ def setup_run(cfg: DictConfig) -> None:
     torch.set_num_threads(int(cfg.threads))
 
 
+def trainer_kwargs(cfg: DictConfig, stage_cfg: DictConfig) -> dict:
+    """The Trainer's arguments for a stage: the ``trainer`` group, overridden by ``stage_cfg.trainer``."""
+    return {**OmegaConf.to_container(cfg.trainer, resolve=True),
+            **OmegaConf.to_container(OmegaConf.create(stage_cfg.get("trainer") or {}), resolve=True)}
+
+
 def fit(cfg: DictConfig, stage: str, stage_cfg: DictConfig, model: L.LightningModule, datamodule: L.LightningDataModule,
         monitor: str = "val/loss") -> tuple[L.Trainer, Path]:
     """Train ``model`` into ``<ckpt_dir>/<stage>/`` (checkpoints, config.yaml, tensorboard/).
@@ -47,7 +53,7 @@ def fit(cfg: DictConfig, stage: str, stage_cfg: DictConfig, model: L.LightningMo
     saved["stage"] = stage
     saved["stage_class"] = f"{type(model).__module__}.{type(model).__name__}"
     OmegaConf.save(OmegaConf.create(saved), folder / "config.yaml")
-    kwargs = {**OmegaConf.to_container(cfg.trainer, resolve=True), **OmegaConf.to_container(OmegaConf.create(stage_cfg.get("trainer") or {}), resolve=True)}
+    kwargs = trainer_kwargs(cfg, stage_cfg)
     trainer = L.Trainer(
         **kwargs,
         logger=TensorBoardLogger(str(folder), name="tensorboard", version=""),
