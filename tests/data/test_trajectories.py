@@ -149,3 +149,24 @@ def test_streaming_a_split_without_video_names_the_file(dataset):
     root, _ = dataset
     with pytest.raises(DatasetError, match=r"train/shard_00000\.h5: key 'images' missing: the dataset was generated with data.render=false"):
         load_split(root, "mass_rope", "train", images=True, stream=True)
+
+
+@pytest.mark.parametrize("stream", [False, True])
+def test_a_shard_whose_frames_differ_from_the_splits_is_named(rendered, tmp_path, stream):
+    """Both video readers refuse a split whose shards hold frames of different sizes, naming the
+    shard and both shapes (a dataset rendered at two resolutions, or a shard from another run)."""
+    import shutil
+
+    import h5py
+
+    root = tmp_path / "mixed"
+    shutil.copytree(rendered, root)
+    odd = root / "mass_rope" / "train" / "shard_00001.h5"
+    with h5py.File(odd, "a") as h:
+        images = h["images"][:, :, :, :-8]  # 8 pixels narrower
+        del h["images"]
+        h.create_dataset("images", data=images)
+    r, t, height, width, _ = images.shape
+    with pytest.raises(DatasetError, match=rf"shard_00001.h5: 'images' of shape \[R, {t}, {height}, {width}, 3\], "
+                                           rf"the split's first shard has \[R, {t}, {height}, {width + 8}, 3\]"):
+        load_split(root, "mass_rope", "train", images=True, stream=stream)
