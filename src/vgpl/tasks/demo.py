@@ -7,7 +7,7 @@ import logging
 from pathlib import Path
 
 from hydra import compose
-from omegaconf import DictConfig, OmegaConf
+from omegaconf import DictConfig, OmegaConf, open_dict
 
 from vgpl.data.shard import read_shard
 import numpy as np
@@ -25,7 +25,9 @@ def demo(cfg: DictConfig) -> dict:
         env_cfg = compose(config_name="config", overrides=[f"env={env}"]).env
         if cfg.task.get("n_steps"):
             env_cfg.scene.n_steps = cfg.task.n_steps
-        sub = OmegaConf.merge(cfg, {"env": env_cfg, "data": {"n_rollouts": cfg.task.n_rollouts}})
+        sub = OmegaConf.merge(cfg, {"data": {"n_rollouts": cfg.task.n_rollouts}})
+        with open_dict(sub):
+            sub.env = env_cfg  # replaced, not merged: a merge would keep keys of the default env that this one lacks
         summary = generate(sub)
         shard = read_shard(summary["shards"][0])
         frames = preview_frames(shard)
