@@ -4,7 +4,6 @@ trainer.max_time cut short (their numbers depend on the machine's speed)."""
 from __future__ import annotations
 
 import time
-from pathlib import Path
 
 import lightning as L
 import pytest
@@ -12,10 +11,9 @@ import torch
 from hydra import compose, initialize_config_dir
 from torch.utils.data import DataLoader, TensorDataset
 
+from tests.conftest import REPO
 from vgpl.tasks.pipeline import training_summary
 from vgpl.tasks.stage import stopping, trainer_kwargs
-
-REPO = Path(__file__).resolve().parents[2]
 
 
 class SlowRegression(L.LightningModule):

@@ -84,8 +84,7 @@ class MassRope(Scene):
         params = self.sample_params(rng, params)
         pin_x, vel_x = random_walk_1d(rng, self.n_steps, self.dt, *self.pin_walk)
         pin_z, vel_z = random_walk_1d(rng, self.n_steps, self.dt, *self.pin_walk)
-        low, high = self.start_stretch
-        u = rng.uniform(low, high) if high > low else low  # drawn after the pin's walk: same seed, same walk as with (1, 1)
+        u = rng.uniform(*self.start_stretch)  # after the pin's walk: one seed, one walk whatever the range; (1, 1) gives exactly 1
         seg = self.chain_rest + u * self.static_stretch(float(params[0]))
         depth = np.concatenate([[0.0], np.cumsum(seg)])  # [K+1] distance below the pin of each chain point
         rope = self.pin + np.outer(depth[: self.n_rope], [0.0, -1.0, 0.0])
