@@ -13,6 +13,7 @@ from lightning.pytorch.loggers import TensorBoardLogger
 from omegaconf import DictConfig, OmegaConf
 
 from vgpl.hardware import precision_warning
+from vgpl.weight_averaging import ExponentialMovingAverage
 
 log = logging.getLogger(__name__)
 
@@ -44,7 +45,9 @@ def fit(cfg: DictConfig, stage: str, stage_cfg: DictConfig, model: L.LightningMo
     """Train ``model`` into ``<ckpt_dir>/<stage>/`` (checkpoints, config.yaml, tensorboard/).
 
     ``ckpt_path=last`` resumes from that folder's last.ckpt (Lightning's own resolution);
-    ``stage_cfg.trainer`` overrides the ``trainer`` group for this stage. Returns the trainer
+    ``stage_cfg.trainer`` overrides the ``trainer`` group for this stage; ``stage_cfg.ema.decay``
+    (when set) validates and saves an exponential moving average of the weights
+    (vgpl.weight_averaging). Returns the trainer
     and the path of last.ckpt.
     """
     folder = stage_dir(cfg, stage)
@@ -54,10 +57,14 @@ def fit(cfg: DictConfig, stage: str, stage_cfg: DictConfig, model: L.LightningMo
     saved["stage_class"] = f"{type(model).__module__}.{type(model).__name__}"
     OmegaConf.save(OmegaConf.create(saved), folder / "config.yaml")
     kwargs = trainer_kwargs(cfg, stage_cfg)
+    callbacks = [ModelCheckpoint(dirpath=folder, filename="best", monitor=monitor, save_last=True)]
+    ema = stage_cfg.get("ema") or {}
+    if ema.get("decay") is not None:
+        callbacks.append(ExponentialMovingAverage(float(ema.decay), int(ema.get("start_step", 0))))
     trainer = L.Trainer(
         **kwargs,
         logger=TensorBoardLogger(str(folder), name="tensorboard", version=""),
-        callbacks=[ModelCheckpoint(dirpath=folder, filename="best", monitor=monitor, save_last=True)],
+        callbacks=callbacks,
         default_root_dir=str(folder),
     )
     warning = precision_warning(str(kwargs.get("precision")), str(kwargs.get("accelerator", "auto")), torch.cuda.is_available())
