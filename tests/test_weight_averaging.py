@@ -73,10 +73,11 @@ def by_hand(history: list[torch.Tensor], decay: float) -> torch.Tensor:
     return average
 
 
-def test_the_decay_warms_up_then_holds():
-    assert ema_decay_at(0.998, 0) == pytest.approx(0.1)
-    assert ema_decay_at(0.998, 90) == pytest.approx(0.91)
-    assert ema_decay_at(0.998, 10_000) == 0.998
+def test_the_average_is_a_plain_mean_until_it_spans_its_window():
+    weights = [torch.tensor(float(k)) for k in range(5)]
+    assert by_hand(weights, 0.9) == pytest.approx(2.0)  # 5 steps < 1 / (1 - 0.9): the mean
+    assert ema_decay_at(0.998, 0) == 0.0 and ema_decay_at(0.998, 3) == 0.75
+    assert ema_decay_at(0.998, 499) == pytest.approx(0.998) and ema_decay_at(0.998, 10_000) == 0.998
 
 
 def test_last_ckpt_holds_the_average_and_the_trained_weights(tmp_path):

@@ -17,10 +17,12 @@ from lightning.pytorch.callbacks import WeightAveraging
 
 
 def ema_decay_at(decay: float, n_averaged: int) -> float:
-    """The decay used at the update after ``n_averaged`` ones: ``min(decay, (1 + n) / (10 + n))``.
-    The warm-up (TensorFlow's ``ExponentialMovingAverage(num_updates=...)``) keeps the random
-    initial weights from lingering in the average of a short run."""
-    return min(decay, (1.0 + n_averaged) / (10.0 + n_averaged))
+    """The decay used at the update after ``n_averaged`` ones: ``min(decay, n / (n + 1))``. Until
+    the average spans ``1 / (1 - decay)`` steps it is the plain mean of every step so far (an
+    EMA from the first step would keep ``decay ** n`` of the random initial weights; TensorFlow's
+    ``(1 + n) / (10 + n)`` warm-up would average over only the last ~n / 9 steps), then an EMA
+    over that many steps."""
+    return min(decay, n_averaged / (n_averaged + 1.0))
 
 
 class ExponentialMovingAverage(WeightAveraging):
