@@ -85,3 +85,13 @@ def test_the_record_holds_the_constant_guess_on_the_same_videos():
     metrics = evaluate_grounding(dyn, visual, inf, scene, test, _ablation(), **KWARGS).metrics
     assert metrics["midpoint_param_mae_pct"] == pytest.approx(30.0)  # 50, 25, 0, 25, 50 % of the range
     assert metrics["midpoint_param_mae_pct_std"] == pytest.approx(torch.tensor([50.0, 25, 0, 25, 50]).std().item())
+
+
+def test_the_record_holds_the_signed_offset_of_the_inferred_parameters():
+    (dyn, visual, inf, scene, test), r = _setup()
+    test = dataclasses.replace(test, params=torch.tensor([[-15.0], [-12.5], [-10.0], [-7.5], [-5.0]]))
+    result = evaluate_grounding(dyn, visual, inf, scene, test, _ablation(), **KWARGS)
+    signed = (result.params - test.params) / 10.0 * 100  # gravity's range is 10
+    assert result.metrics["param_bias_pct"] == pytest.approx(float(signed.mean()), rel=1e-5)
+    assert result.metrics["param_mae_pct"] == pytest.approx(float(signed.abs().mean()), rel=1e-5)
+    assert abs(result.metrics["param_bias_pct"]) <= result.metrics["param_mae_pct"]

@@ -5,7 +5,7 @@ from __future__ import annotations
 import torch
 
 from vgpl.eval.metrics import midpoint_error_pct
-from vgpl.eval.tables import MIDPOINT_ROW, report_markdown, table1_rows
+from vgpl.eval.tables import MIDPOINT_ROW, csv_text, param_rows, report_markdown, table1_rows
 
 
 def _record(env: str, ablation: str, mae: float, midpoint: float | None = None) -> dict:
@@ -36,3 +36,9 @@ def test_records_without_the_midpoint_give_the_old_table():
     rows = table1_rows(records)[1]
     assert rows[0] == [MIDPOINT_ROW, "24.0% (2.0)", ""]  # an env evaluated before the key existed: an empty cell
     assert MIDPOINT_ROW not in report_markdown(records[:1])
+
+
+def test_params_csv_has_one_row_per_video_with_true_and_inferred_values():
+    header, rows = param_rows(["gravity"], torch.tensor([[-10.0], [-5.5]]), torch.tensor([[-9.25], [-6.0]]), torch.tensor([7, 3]))
+    assert csv_text(header, rows) == "rollout_id,true_gravity,inferred_gravity\r\n7,-10,-9.25\r\n3,-5.5,-6\r\n"
+    assert param_rows(["a", "b"], torch.zeros(1, 2), torch.ones(1, 2))[0] == ["rollout_id", "true_a", "inferred_a", "true_b", "inferred_b"]

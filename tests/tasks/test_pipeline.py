@@ -3,6 +3,7 @@ parameter guess, and evaluation from the saved checkpoints reproduces its number
 
 from __future__ import annotations
 
+import csv
 import json
 import re
 from pathlib import Path
@@ -53,6 +54,11 @@ def test_inferred_parameters_beat_the_range_midpoint(tiny):
     assert full["param_mae_pct"] < float(midpoint)
     assert full["midpoint_param_mae_pct"] == pytest.approx(float(midpoint), rel=1e-5)  # the record's floor, the same videos
     assert "| range midpoint (constant guess) |" in (tmp / "run/report.md").read_text()
+    rows = list(csv.DictReader((tmp / "run/evaluate/full/params.csv").open()))  # per video: the record's MAE again
+    assert len(rows) == len(test.params) == full["n_test"]
+    errors = [(float(r["inferred_gravity"]) - float(r["true_gravity"])) / 10.0 * 100 for r in rows]
+    assert sum(map(abs, errors)) / len(errors) == pytest.approx(full["param_mae_pct"], abs=1e-3)
+    assert sum(errors) / len(errors) == pytest.approx(full["param_bias_pct"], abs=1e-3)
     assert full["refine_mse_x1e4_after"] < full["refine_mse_x1e4_before"]
     assert 0 < full["future_mse_x1e4@1"] < full["future_mse_x1e4@10"]
 

@@ -9,7 +9,7 @@ import torch
 
 from vgpl.data.proposals import propose_videos, truth_proposals
 from vgpl.data.trajectories import Rollouts
-from vgpl.eval.metrics import correct_rigidness_prob, midpoint_error_pct, param_error_pct, position_mse_x1e4
+from vgpl.eval.metrics import correct_rigidness_prob, midpoint_error_pct, param_signed_error_pct, position_mse_x1e4
 from vgpl.eval.rollout import future_mse, rollout
 
 
@@ -79,8 +79,10 @@ def evaluate_grounding(dynamics, visual, inference, scene, test: Rollouts, ablat
                            rigidness=bool(ablation.rigidness), params=bool(ablation.params), generator=gen)
     metrics = {}
     # Table 1: parameters
-    err = param_error_pct(out["params"], test.params, test.param_low, test.param_high).mean(1)
+    signed = param_signed_error_pct(out["params"], test.params, test.param_low, test.param_high)
+    err = signed.abs().mean(1)
     metrics["param_mae_pct"], metrics["param_mae_pct_std"] = float(err.mean()), float(err.std())
+    metrics["param_bias_pct"] = float(signed.mean())  # the global offset: > 0 reads too high on average
     floor = midpoint_error_pct(test.params, test.param_low, test.param_high).mean(1)  # the same videos, a constant guess
     metrics["midpoint_param_mae_pct"], metrics["midpoint_param_mae_pct_std"] = float(floor.mean()), float(floor.std())
     # refinement

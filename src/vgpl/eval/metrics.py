@@ -6,9 +6,15 @@ from __future__ import annotations
 import torch
 
 
+def param_signed_error_pct(pred: torch.Tensor, truth: torch.Tensor, low: torch.Tensor, high: torch.Tensor) -> torch.Tensor:
+    """(P_hat - P) / (high - low) x 100 per scene and parameter [B, P] (pred, truth [B, P] physical).
+    Its mean over scenes is the estimate's global offset (bias), which the MAE folds in."""
+    return (pred - truth) / (high - low) * 100.0
+
+
 def param_error_pct(pred: torch.Tensor, truth: torch.Tensor, low: torch.Tensor, high: torch.Tensor) -> torch.Tensor:
     """|P_hat - P| / (high - low) x 100 per scene and parameter [B, P] (pred, truth [B, P] physical)."""
-    return (pred - truth).abs() / (high - low) * 100.0
+    return param_signed_error_pct(pred, truth, low, high).abs()
 
 
 def midpoint_error_pct(truth: torch.Tensor, low: torch.Tensor, high: torch.Tensor) -> torch.Tensor:

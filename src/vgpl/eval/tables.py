@@ -72,6 +72,15 @@ def markdown(header: list[str], rows: list[list[str]]) -> str:
     return "\n".join(lines)
 
 
+def param_rows(names: list[str], truth, inferred, rollout_ids=None) -> tuple[list[str], list[list[str]]]:
+    """params.csv of an evaluation: one row per test video with its true and inferred value of each
+    parameter (truth, inferred [R, P] physical; rollout_ids [R], default 0 .. R - 1)."""
+    ids = list(range(len(truth))) if rollout_ids is None else [int(i) for i in rollout_ids]
+    header = ["rollout_id"] + [f"{kind}_{n}" for n in names for kind in ("true", "inferred")]
+    rows = [[str(i)] + [f"{float(v):.6g}" for p in range(len(names)) for v in (t[p], x[p])] for i, t, x in zip(ids, truth, inferred)]
+    return header, rows
+
+
 def csv_text(header: list[str], rows: list[list[str]]) -> str:
     buf = io.StringIO()
     csv.writer(buf).writerows([header, *rows])

@@ -1,5 +1,6 @@
 """task=evaluate: the paper's evaluation of one method / ablation on one environment's test
-videos, from checkpoint paths alone. Writes metrics.json, table1/table2 (Markdown + CSV), PNG
+videos, from checkpoint paths alone. Writes metrics.json, params.csv (true and inferred
+parameters per test video), table1/table2 (Markdown + CSV), PNG
 figures and TensorBoard events into the run folder; task=report gathers many of them."""
 
 from __future__ import annotations
@@ -17,7 +18,7 @@ from vgpl.data.trajectories import load_split
 from vgpl.eval import figures
 from vgpl.eval.grounding import evaluate_grounding
 from vgpl.eval.preview import write_gif
-from vgpl.eval.tables import csv_text, report_markdown, table1_rows, table2_rows
+from vgpl.eval.tables import csv_text, param_rows, report_markdown, table1_rows, table2_rows
 from vgpl.eval.tensorboard_media import add_gif, rollout_video
 from vgpl.models.dynamics_prior import DynamicsPrior
 from vgpl.models.inference import InferenceModule
@@ -74,6 +75,7 @@ def evaluate(cfg: DictConfig) -> dict:
     out = Path(cfg.paths.output_dir)
     out.mkdir(parents=True, exist_ok=True)
     (out / "metrics.json").write_text(json.dumps(record, indent=1))
+    (out / "params.csv").write_text(csv_text(*param_rows(list(scene.param_names), test.params, result.params, test.rollout_ids)))
     notes = (f"\nProposals: the recorded particles + N(0, {noise_std:g}^2) m (eval.proposals=truth), not the visual prior: a diagnostic.\n"
              if truth else "")
     text = write_tables([record], out, notes)
