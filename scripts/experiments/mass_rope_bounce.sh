@@ -33,3 +33,13 @@ grep -h '"oracle_param_mae_pct\|"midpoint_param_mae_pct\|future_mse_x1e4@' outpu
 # done; wait
 # python run.py -m task=evaluate env=mass_rope experiment=standard ablation=full,no_rigidness,no_refinement,no_params \
 #     eval.max_rollouts=100 eval.curve_rollouts=8 hydra.sweep.dir=multirun/mr_bounce_study
+# Session 21: resumed once more on one thread beside a RigidFall run, past the end of the first epoch
+# (39.6k steps, where the rate drops to 0.3x), to 58.3k steps; max_epochs raised because the checkpoint
+# had counted 3 epochs already. Oracle 11.8% (midpoint 27.2%). Then the first MassRope inference module
+# on a prior that grounds stiffness (EMA on, so one run gives both arms).
+# run task=train_dynamics seed=1 threads=1 trainer.precision=bf16-mixed ckpt_path=last trainer.max_epochs=10 \
+#     trainer.max_time=00:02:45:00 hydra.run.dir=outputs/mr_bounce_prior_resumed3
+# oracle mr_bounce_oracle_58k
+# run task=train_inference threads=2 model.inference.net.trajectory_start=both trainer.limit_val_batches=50 \
+#     model.inference.ema.decay=0.998 model.inference.trainer.max_time=00:00:24:00 ckpt.dynamics=$CK/dynamics/last.ckpt \
+#     paths.ckpt_dir=checkpoints/ema/mass_rope hydra.run.dir=outputs/mr_inference_58k
