@@ -43,3 +43,9 @@ grep -h '"oracle_param_mae_pct\|"midpoint_param_mae_pct\|future_mse_x1e4@' outpu
 # run task=train_inference threads=2 model.inference.net.trajectory_start=both trainer.limit_val_batches=50 \
 #     model.inference.ema.decay=0.998 model.inference.trainer.max_time=00:00:24:00 ckpt.dynamics=$CK/dynamics/last.ckpt \
 #     paths.ckpt_dir=checkpoints/ema/mass_rope hydra.run.dir=outputs/mr_inference_58k
+# python -c "from vgpl.weight_averaging import trained_weights_checkpoint as t; t('checkpoints/ema/mass_rope/inference/last.ckpt', 'checkpoints/ema/mass_rope/inference/trained.ckpt')"
+# for arm in last trained; do   # one thread each, side by side, ~8 min
+#   run task=evaluate ablation=full eval.max_rollouts=100 eval.curve_rollouts=8 threads=1 paths.ckpt_dir=checkpoints/ema/mass_rope \
+#       ckpt.dynamics=$CK/dynamics/last.ckpt ckpt.visual=$CK/visual/last.ckpt ckpt.inference=checkpoints/ema/mass_rope/inference/$arm.ckpt \
+#       hydra.run.dir=outputs/mr_evaluate_$arm &
+# done; wait
