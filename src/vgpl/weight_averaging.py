@@ -63,7 +63,7 @@ def trained_weights_checkpoint(src: str | Path, dst: str | Path) -> Path:
     src, dst = Path(src), Path(dst)
     ckpt = torch.load(src, map_location="cpu", weights_only=False)
     if "current_model_state" not in ckpt:
-        raise KeyError(f"{src}: no 'current_model_state' (trained without model.<stage>.ema_decay), its state_dict is already the trained weights")
+        raise KeyError(f"{src}: no 'current_model_state' (trained without model.<stage>.ema.decay), its state_dict is already the trained weights")
     ckpt["state_dict"] = ckpt.pop("current_model_state")
     ckpt.pop("averaging_state", None)
     torch.save(ckpt, dst)
