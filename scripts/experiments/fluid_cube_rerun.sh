@@ -27,3 +27,13 @@ cp $CK/dynamics/last.ckpt $CK/dynamics/step22883.ckpt
 # every argmin at the most viscous end (oracle 44.2% against 29.1%): the prior resumed to 90 minutes in all
 run task=train_dynamics threads=2 trainer.precision=bf16-mixed ckpt_path=last trainer.max_time=00:01:30:00 \
     hydra.run.dir=outputs/fc_prior_resumed2
+cp $CK/dynamics/last.ckpt $CK/dynamics/step40186.ckpt
+# the identifiability check on the 40.2k-step prior at both horizons, one thread each, side by side (~3 min)
+for h in 5 15; do
+  run task=evaluate_dynamics threads=1 eval.max_rollouts=20 task.param_grid=9 model.inference.net.horizon=$h \
+      ckpt_path=$CK/dynamics/last.ckpt hydra.run.dir=outputs/fc_oracle40k_h$h &
+done; wait
+# the inference module (the standard 5-frame horizon, P from the true start), 20 min on both cores
+run task=train_inference threads=2 model.inference.net.trajectory_start=both trainer.limit_val_batches=50 \
+    model.inference.trainer.max_time=00:00:20:00 hydra.run.dir=outputs/fc_inference
+run task=evaluate ablation=full threads=2 eval.max_rollouts=100 eval.curve_rollouts=8 hydra.run.dir=outputs/fc_evaluate
