@@ -1,12 +1,14 @@
 #!/usr/bin/env bash
 # Session 22 (CPU, 2 cores, AMD EPYC), issue 4, FluidCube: the standard chain rerun from scratch with
-# the recipes of sessions 15-21 (the streamed visual prior on all 900 training videos, the trajectory
-# loss from the true frames, the 15-frame horizon whose oracle was 15.0% in session 6). FluidCube had
-# not been run since session 6 (viscosity 25.2% from video against the paper's 17.5%).
+# the recipes of sessions 15-21 (the streamed visual prior on all 900 training videos, P learnt from
+# the true start with trajectory_start=both), and the identifiability oracle checked at each prior stop.
+# FluidCube had not been run since session 6 (viscosity 25.2% from video against the paper's 17.5%).
 # As run. Usage: bash scripts/experiments/fluid_cube_rerun.sh
 set -euo pipefail
 run() { python run.py env=fluid_cube experiment=standard "$@"; }
 CK=checkpoints/standard/fluid_cube
+# the viscosity oracle of the current prior on 20 test videos (README: design, "a floor for parameter grounding")
+oracle() { run task=evaluate_dynamics eval.max_rollouts=20 task.param_grid=9 ckpt_path=$CK/dynamics/last.ckpt "$@"; }
 run task=generate data.processes=2 hydra.run.dir=outputs/fc_generate                     # 1000 rendered rollouts
 # core 1: the dynamics prior (session 4's recipe, bf16-mixed) on one thread for its first 27 minutes
 run task=train_dynamics threads=1 trainer.precision=bf16-mixed trainer.max_time=00:00:27:00 \
@@ -21,8 +23,7 @@ run task=train_dynamics threads=2 trainer.precision=bf16-mixed ckpt_path=last tr
     hydra.run.dir=outputs/fc_prior_resumed
 # The identifiability check on this 22.9k-step prior (20 test videos, the 15-frame horizon); the
 # gradient agreement was stopped after its first window start (its line is in the run's log)
-run task=evaluate_dynamics threads=2 eval.max_rollouts=20 task.param_grid=9 'task.gradient_starts=[0,10,20]' \
-    model.inference.net.horizon=15 ckpt_path=$CK/dynamics/last.ckpt hydra.run.dir=outputs/fc_oracle_h15
+oracle threads=2 'task.gradient_starts=[0,10,20]' model.inference.net.horizon=15 hydra.run.dir=outputs/fc_oracle_h15
 cp $CK/dynamics/last.ckpt $CK/dynamics/step22883.ckpt
 # every argmin at the most viscous end (oracle 44.2% against 29.1%): the prior resumed to 90 minutes in all
 run task=train_dynamics threads=2 trainer.precision=bf16-mixed ckpt_path=last trainer.max_time=00:01:30:00 \
@@ -30,8 +31,7 @@ run task=train_dynamics threads=2 trainer.precision=bf16-mixed ckpt_path=last tr
 cp $CK/dynamics/last.ckpt $CK/dynamics/step40186.ckpt
 # the identifiability check on the 40.2k-step prior at both horizons, one thread each, side by side (~3 min)
 for h in 5 15; do
-  run task=evaluate_dynamics threads=1 eval.max_rollouts=20 task.param_grid=9 model.inference.net.horizon=$h \
-      ckpt_path=$CK/dynamics/last.ckpt hydra.run.dir=outputs/fc_oracle40k_h$h &
+  oracle threads=1 model.inference.net.horizon=$h hydra.run.dir=outputs/fc_oracle40k_h$h &
 done; wait
 # the inference module (the standard 5-frame horizon, P from the true start), 20 min on both cores
 run task=train_inference threads=2 model.inference.net.trajectory_start=both trainer.limit_val_batches=50 \
