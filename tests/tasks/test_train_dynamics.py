@@ -116,6 +116,25 @@ def test_gradient_agreement_by_window_start_is_the_per_window_numbers_and_bad_st
     assert json.loads((tmp / "run/metrics.json").read_text())["param_gradient_agreement/gravity"] == shares  # refused before writing anything
 
 
+def test_a_stopped_gradient_agreement_keeps_the_oracle_numbers_in_metrics_json(trained, monkeypatch):
+    """The gradient agreement runs last and can take an hour: stopping it (here, a failure in its
+    first window) must leave the sweep's numbers in metrics.json, not only in the log."""
+    import vgpl.tasks.train_dynamics as task
+
+    tmp, result = trained
+    (tmp / "run/metrics.json").unlink(missing_ok=True)
+
+    def stopped(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(task, "gradient_agreement_by_start", stopped)
+    with pytest.raises(KeyboardInterrupt):
+        evaluate_dynamics(config(tmp, "task=evaluate_dynamics", f"ckpt_path={result['checkpoint']}", "eval.max_rollouts=2", "task.gradient_starts=[15]"))
+    written = json.loads((tmp / "run/metrics.json").read_text())
+    assert 0 <= written["oracle_param_mae_pct/gravity"] <= 100 and len(written["rollout_l1_over_grid/gravity"]) == 9
+    assert "param_gradient_agreement/gravity" not in written
+
+
 def test_truth_proposals_need_no_video_or_visual_prior_and_the_inference_module_says_it_trained_on_them(trained):
     """task=export_proposals task.source=truth: the recorded particles plus Gaussian noise of
     task.noise_std metres, for the frames the inference windows read, on data without video; the

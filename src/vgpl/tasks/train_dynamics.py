@@ -124,14 +124,18 @@ def evaluate_dynamics(cfg: DictConfig) -> dict:
     )
     out = Path(cfg.paths.output_dir)
     result = {"env": scene.name, "checkpoint": str(cfg.ckpt_path), **metrics}
-    (out / "metrics.json").write_text(json.dumps(result, indent=1))  # kept if the sweep below fails (e.g. no proposals)
+    # metrics.json is rewritten after each part, so a later part that fails or is stopped (no
+    # proposals; the gradient agreement can take an hour) keeps the numbers of the earlier ones
+    write_metrics = lambda: (out / "metrics.json").write_text(json.dumps(result, indent=1))  # noqa: E731
+    write_metrics()
     write_gif(rollout_video(scene.camera, scene.instance, truth[0], pred[0]), out / "rollout_truth_vs_prediction.gif", fps=15)
     grid = int(cfg.task.get("param_grid", 0))
     if grid > 0:
         result |= sweep_metrics(model, scene, test, cfg, train_cfg, out, grid, cfg.eval.get("max_rollouts"), cfg.task.get("param_sweep_history", "truth"))
         log.info("identifiability: %s", {k: v for k, v in result.items() if "param_mae" in k})
+        write_metrics()
     if starts:
         inf = cfg.model.inference
         result |= gradient_agreement_by_start(model, scene, test, inf.observed, inf.net.horizon, starts, out, cfg.eval.get("max_rollouts"))
-    (out / "metrics.json").write_text(json.dumps(result, indent=1))
+        write_metrics()
     return result
