@@ -131,3 +131,28 @@ def test_sliding_window_keeps_the_last_frame_of_each_window():
         first, _ = model.propose(images[:1, 0:4])
         third, g = model.propose(images[1:, 2:6])
     assert torch.allclose(pos[0, :4], first[0]) and torch.allclose(pos[1, 5], third[0, -1]) and torch.allclose(logits[1, 5], g[0, -1])
+
+
+@pytest.mark.parametrize("separate", [False, True])
+def test_param_lr_puts_exactly_the_parameter_pathway_in_its_own_group(separate):
+    _, inf = _modules(separate_param_net=separate, lr=1e-4, param_lr=3e-3)
+    rest, pathway = inf.configure_optimizers().param_groups
+    assert (rest["lr"], pathway["lr"]) == (1e-4, 3e-3)
+    named = {id(w): name for name, w in inf.named_parameters()}
+    in_pathway = {named[id(w)].split(".")[0] for w in pathway["params"]}
+    assert in_pathway == ({"param_head", "param_encoder"} if separate else {"param_head"})
+    assert len(rest["params"]) + len(pathway["params"]) == len(named)  # every weight once
+    # Adam's first step moves a weight with a gradient by its group's lr (a gradient well above Adam's eps)
+    optimiser, bias = inf.configure_optimizers(), inf.param_head.lins[-1].bias
+    before = {n: w.detach().clone() for n, w in inf.named_parameters()}
+    bias.sum().backward()
+    optimiser.step()
+    assert {n for n, w in inf.named_parameters() if not torch.equal(w, before[n])} == {f"param_head.lins.{len(inf.param_head.lins) - 1}.bias"}
+    assert (bias.detach() - before[f"param_head.lins.{len(inf.param_head.lins) - 1}.bias"]).abs().max().item() == pytest.approx(3e-3, rel=1e-3)
+
+
+def test_without_param_lr_one_group_and_a_bad_one_is_refused():
+    _, inf = _modules()
+    assert len(inf.configure_optimizers().param_groups) == 1
+    with pytest.raises(ValueError, match="param_lr=0"):
+        _modules(param_lr=0)

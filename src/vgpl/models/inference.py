@@ -87,10 +87,13 @@ class InferenceModule(NormalisationBuffers, L.LightningModule):
         one_step_windows: int | None = 0,
         param_weight: float = 0.0,
         trajectory_start: str = "refined",
+        param_lr: float | None = None,
     ) -> None:
         super().__init__()
         if trajectory_start not in ("refined", "truth", "both"):
             raise ValueError(f"InferenceModule: trajectory_start={trajectory_start!r}, expected 'refined' (the paper), 'truth' or 'both'")
+        if param_lr is not None and not param_lr > 0:
+            raise ValueError(f"InferenceModule: param_lr={param_lr!r}, expected a positive learning rate or null (= lr)")
         self.save_hyperparameters()
         self.register_normalisation(param_low, param_high)
         node_dim = 3 + 3 + n_instances + 1
@@ -225,5 +228,16 @@ class InferenceModule(NormalisationBuffers, L.LightningModule):
         if self.dynamics is not None:
             self.dynamics.to(self.device)
 
+    def param_pathway(self) -> list[nn.Parameter]:
+        """The weights only P's loss reaches: the parameter head, and the parameter encoder when separate."""
+        modules = [self.param_head] + ([self.param_encoder] if self.param_encoder is not None else [])
+        return [w for m in modules for w in m.parameters()]
+
     def configure_optimizers(self):
-        return torch.optim.Adam(self.parameters(), lr=self.hparams.lr)
+        """Adam at ``lr``; the parameter pathway at ``param_lr`` when set (Adam moves a weight by
+        about lr a step, so at 1e-4 P's head needs thousands of steps to span its range)."""
+        if self.hparams.param_lr is None:
+            return torch.optim.Adam(self.parameters(), lr=self.hparams.lr)
+        pathway = {id(w) for w in self.param_pathway()}
+        rest = [w for w in self.parameters() if id(w) not in pathway]
+        return torch.optim.Adam([{"params": rest}, {"params": self.param_pathway(), "lr": self.hparams.param_lr}], lr=self.hparams.lr)
