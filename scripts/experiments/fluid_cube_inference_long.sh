@@ -43,3 +43,8 @@ run "${evaluate[@]}" ckpt.inference=$SEP/inference/last.ckpt hydra.run.dir=outpu
 run "${evaluate[@]}" ckpt.inference=$SEP/inference/trained.ckpt hydra.run.dir=outputs/fc_evaluate_sep_trained &
 wait
 grep -h '"param_mae_pct\|"param_bias_pct\|future_mse_x1e4@20\|refine_mse' outputs/fc_evaluate_{1499,sep_ema,sep_trained}/metrics.json
+# then B resumed 14 min on both cores (the timer carries over): 2,683 steps
+#   run task=train_inference threads=2 model.inference.net.trajectory_start=both model.inference.net.separate_param_net=true \
+#       model.inference.ema.decay=0.998 trainer.limit_val_batches=50 model.inference.trainer.max_steps=20000 \
+#       model.inference.trainer.max_time=00:02:09:00 ckpt.dynamics=$CK/dynamics/last.ckpt paths.ckpt_dir=$SEP ckpt_path=last \
+#       hydra.run.dir=outputs/fc_inference_sep_resumed
