@@ -19,14 +19,13 @@ import sys
 import time
 from pathlib import Path
 
-import h5py
 import numpy as np
 import torch
 
-from fluid_cube_viscosity_probe import motion_statistics, ridge_fit_predict  # this folder
+from fluid_cube_viscosity_probe import load_with_proposals, motion_statistics  # this folder
 from vgpl.checkpoint import scene_of
-from vgpl.data.grounding import proposals_path
-from vgpl.data.trajectories import ground_truth_grouping, load_split
+from vgpl.data.trajectories import ground_truth_grouping
+from vgpl.eval.linear_probe import Ridge
 from vgpl.eval.identifiability import rollout_l1_per_scene
 from vgpl.tasks.train_dynamics import load_dynamics
 
@@ -44,11 +43,7 @@ def main(minutes: float = 25, batch: int = 8, lr: float = 1e-2) -> None:
     torch.manual_seed(0)
     model, train_cfg = load_dynamics(PRIOR)
     scene = scene_of(train_cfg)
-    data = {}
-    for split in ("train", "test"):
-        with h5py.File(proposals_path(ROOT, "fluid_cube", split)) as f:
-            proposals = f["positions"][:].astype(np.float64)
-        data[split] = (load_split(ROOT, "fluid_cube", split, max_rollouts=len(proposals)), proposals)
+    data = {split: load_with_proposals(ROOT, split) for split in ("train", "test")}
     train, train_prop = data["train"]
     test, test_prop = data["test"]
     instance = train.instance.numpy()
@@ -60,7 +55,7 @@ def main(minutes: float = 25, batch: int = 8, lr: float = 1e-2) -> None:
     mu, sd = x_train.reshape(-1, x_train.shape[-1]).mean(0), x_train.reshape(-1, x_train.shape[-1]).std(0) + 1e-12
     x_train, x_test = torch.as_tensor((x_train - mu) / sd, dtype=torch.float32), torch.as_tensor((x_test - mu) / sd, dtype=torch.float32)
     truth_test = model.normalise_params(test.params)[:, 0]
-    supervised = ridge_fit_predict(x_train[:, 0].numpy(), model.normalise_params(train.params)[:, 0].numpy(), x_test.numpy(), 1.0)
+    supervised = Ridge.fit(x_train[:, 0], model.normalise_params(train.params), alpha=1.0).predict(x_test)[:, 0]
     readout = torch.nn.Linear(x_train.shape[-1], 1)
     torch.nn.init.zeros_(readout.weight), torch.nn.init.zeros_(readout.bias)  # starts at the midpoint
     optimiser = torch.optim.Adam(readout.parameters(), lr=lr)
@@ -73,7 +68,7 @@ def main(minutes: float = 25, batch: int = 8, lr: float = 1e-2) -> None:
             pred = torch.tanh(readout(x_test))[:, 0]
         return float(((pred - truth_test).abs() * 50).mean()), float(np.corrcoef(pred.numpy(), truth_test.numpy())[0, 1]) if pred.std() > 0 else 0.0
 
-    log = {"supervised_ridge_mae_pct": float((np.abs(np.clip(supervised, -1, 1) - truth_test.numpy()) * 50).mean()),
+    log = {"supervised_ridge_mae_pct": float(((supervised.clamp(-1, 1) - truth_test).abs() * 50).mean()),
            "midpoint_mae_pct": float((truth_test.abs() * 50).mean()), "batch": batch, "lr": lr, "curve": []}
     print(f"midpoint {log['midpoint_mae_pct']:.1f}%, supervised ridge on the same features {log['supervised_ridge_mae_pct']:.1f}%")
     t0, step = time.time(), 0

@@ -15,11 +15,14 @@ from __future__ import annotations
 
 import sys
 
-import h5py
 import numpy as np
+import torch
 
 from vgpl.data.grounding import proposals_path
+from vgpl.data.proposals import read_proposals
 from vgpl.data.trajectories import load_split
+from vgpl.eval.linear_probe import Ridge
+from vgpl.eval.metrics import midpoint_error_pct, param_error_pct
 
 FLUID, CUBE = 1, 0  # FluidCube's instance ids
 
@@ -40,36 +43,32 @@ def motion_statistics(positions: np.ndarray, container: np.ndarray, instance: np
     return np.concatenate([f.reshape(len(positions), -1) for f in out], 1)
 
 
-def ridge_fit_predict(x_train: np.ndarray, y_train: np.ndarray, x_test: np.ndarray, alpha: float) -> np.ndarray:
-    """Standardised ridge regression: fitted on (x_train, y_train), evaluated at x_test."""
-    mu, sd = x_train.mean(0), x_train.std(0) + 1e-12
-    a, b = (x_train - mu) / sd, (x_test - mu) / sd
-    w = np.linalg.solve(a.T @ a + alpha * np.eye(a.shape[1]), a.T @ (y_train - y_train.mean()))
-    return b @ w + y_train.mean()
+def load_with_proposals(root: str, split: str):
+    """(the split's first rollouts as Rollouts, their exported proposals [R, T, N, 3] as float64),
+    refused by file name when the proposals' rollout_ids are not the split's first R."""
+    path = proposals_path(root, "fluid_cube", split)
+    proposals = read_proposals(path)
+    rollouts = load_split(root, "fluid_cube", split, max_rollouts=len(proposals.rollout_ids))
+    if not torch.equal(rollouts.rollout_ids, proposals.rollout_ids):
+        raise ValueError(f"{path}: rollout_ids differ from the {split} split's first {len(proposals.rollout_ids)}")
+    return rollouts, proposals.positions.double().numpy()
 
 
 def main(root: str = "data/standard") -> None:
-    splits = {}
-    for split in ("train", "test"):
-        with h5py.File(proposals_path(root, "fluid_cube", split)) as f:
-            proposals, ids = f["positions"][:].astype(np.float64), f["rollout_ids"][:]
-        rollouts = load_split(root, "fluid_cube", split, max_rollouts=len(ids))
-        if not (rollouts.rollout_ids.numpy() == ids).all():
-            raise ValueError(f"{proposals_path(root, 'fluid_cube', split)}: rollout_ids differ from the {split} split's first {len(ids)}")
-        splits[split] = (rollouts, proposals)
+    splits = {split: load_with_proposals(root, split) for split in ("train", "test")}
     (train, _), (test, _) = splits["train"], splits["test"]
-    low, high = float(train.param_low[0]), float(train.param_high[0])
-    y_train, y_test = train.params[:, 0].numpy(), test.params[:, 0].numpy()
-    pct = lambda pred: np.abs(np.clip(pred, low, high) - y_test).mean() / (high - low) * 100  # noqa: E731
-    print(f"range midpoint: viscosity MAE {pct(np.full_like(y_test, (low + high) / 2)):.1f}% of the range")
+    low, high, truth = train.param_low, train.param_high, test.params
+    pct = lambda pred: float(param_error_pct(pred.clamp(low, high), truth, low, high).mean())  # noqa: E731
+    print(f"range midpoint: viscosity MAE {float(midpoint_error_pct(truth, low, high).mean()):.1f}% of the range")
     for frames in (10, 30):
         for source in ("truth", "proposals"):
             x = {}
             for split, (rollouts, proposals) in splits.items():
-                pos = rollouts.positions.numpy().astype(np.float64) if source == "truth" else proposals
-                x[split] = motion_statistics(pos[:, :frames], rollouts.actions[:, :frames, :3].numpy(), rollouts.instance.numpy())
-            pred = ridge_fit_predict(x["train"], y_train, x["test"], alpha=1.0)
-            print(f"first {frames:2d} frames of the {source:9s}: viscosity MAE {pct(pred):4.1f}% of the range, r = {np.corrcoef(pred, y_test)[0, 1]:.2f}")
+                pos = rollouts.positions.double().numpy() if source == "truth" else proposals
+                x[split] = torch.as_tensor(motion_statistics(pos[:, :frames], rollouts.actions[:, :frames, :3].numpy(), rollouts.instance.numpy()))
+            pred = Ridge.fit(x["train"], train.params, alpha=1.0).predict(x["test"].float())
+            r = np.corrcoef(pred[:, 0].numpy(), truth[:, 0].numpy())[0, 1]
+            print(f"first {frames:2d} frames of the {source:9s}: viscosity MAE {pct(pred):4.1f}% of the range, r = {r:.2f}")
 
 
 if __name__ == "__main__":
