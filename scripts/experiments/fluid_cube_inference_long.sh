@@ -33,7 +33,7 @@ run "${common[@]}" model.inference.net.separate_param_net=true model.inference.e
 #         paths.ckpt_dir=checkpoints/$arm/fluid_cube hydra.run.dir=outputs/fc_inference_$arm
 #   done
 #   python scripts/experiments/fluid_cube_viscosity_probe.py            # 1 min
-#   python scripts/experiments/fluid_cube_inferred_viscosity.py $CK/inference/step1499.ckpt $SEP/inference/{last,trained}.ckpt checkpoints/supervised{,_plr}/fluid_cube/inference/last.ckpt
+#   python scripts/experiments/inferred_parameters.py --env fluid_cube $CK/inference/step1499.ckpt $SEP/inference/{last,trained}.ckpt checkpoints/supervised{,_plr}/fluid_cube/inference/last.ckpt
 #   python scripts/experiments/fluid_cube_readout_through_prior.py 24 8 1e-2
 wait
 python -c "from vgpl.weight_averaging import trained_weights_checkpoint as t; t('$SEP/inference/last.ckpt', '$SEP/inference/trained.ckpt')"

@@ -8,8 +8,8 @@ module's way: only through the frozen dynamics prior's rollout L1 from the true 
 frames 0..20 of the 300 training rollouts. The encoder is taken out of the question: if this
 readout does not learn P, the loss is what fails, not the representation.
 
-Usage: python scripts/experiments/fluid_cube_readout_through_prior.py [minutes, 25] [batch, 8] [lr, 1e-2]
-Writes outputs/fc_readout_through_prior/metrics.json (test MAE every 50 steps).
+Usage: python scripts/experiments/fluid_cube_readout_through_prior.py [minutes, 25] [batch, 8] [lr, 1e-2] [out, outputs/fc_readout_through_prior]
+Writes OUT/metrics.json (test MAE every 50 steps); a short trial should name its own OUT.
 """
 
 from __future__ import annotations
@@ -38,7 +38,7 @@ def window_features(positions: np.ndarray, container: np.ndarray, instance: np.n
     return motion_statistics(positions[:, frames], container[:, frames], instance)
 
 
-def main(minutes: float = 25, batch: int = 8, lr: float = 1e-2) -> None:
+def main(minutes: float = 25, batch: int = 8, lr: float = 1e-2, out: str = "outputs/fc_readout_through_prior") -> None:
     torch.set_num_threads(1)
     torch.manual_seed(0)
     model, train_cfg = load_dynamics(PRIOR)
@@ -72,7 +72,7 @@ def main(minutes: float = 25, batch: int = 8, lr: float = 1e-2) -> None:
            "midpoint_mae_pct": float((truth_test.abs() * 50).mean()), "batch": batch, "lr": lr, "curve": []}
     print(f"midpoint {log['midpoint_mae_pct']:.1f}%, supervised ridge on the same features {log['supervised_ridge_mae_pct']:.1f}%")
     t0, step = time.time(), 0
-    out = Path("outputs/fc_readout_through_prior")
+    out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     while time.time() - t0 < minutes * 60:
         if step % 50 == 0:
@@ -99,4 +99,4 @@ def main(minutes: float = 25, batch: int = 8, lr: float = 1e-2) -> None:
 
 
 if __name__ == "__main__":
-    main(*(float(a) if i != 1 else int(a) for i, a in enumerate(sys.argv[1:])))
+    main(*(cast(a) for cast, a in zip((float, int, float, str), sys.argv[1:])))

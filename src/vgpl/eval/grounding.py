@@ -31,7 +31,7 @@ def observed_proposals(visual, images: torch.Tensor, start: int, frames: int) ->
     return pos[:, start - first :], logits[:, start - first :]
 
 
-def _infer_in_chunks(inference, proposals, logits, kinematic, chunk: int, **flags) -> dict:
+def infer_in_chunks(inference, proposals, logits, kinematic, chunk: int, **flags) -> dict:
     """``inference.infer`` on ``chunk`` videos at a time, outputs concatenated along the batch."""
     parts = [inference.infer(proposals[i : i + chunk], logits[i : i + chunk], kinematic, **flags) for i in range(0, len(proposals), chunk)]
     return {k: torch.cat([p[k] for p in parts]) for k in parts[0]}
@@ -75,7 +75,7 @@ def evaluate_grounding(dynamics, visual, inference, scene, test: Rollouts, ablat
     gen = torch.Generator().manual_seed(seed)
     # a few videos at a time: all 100 FluidCube videos at T = 10 make ~5 GB per activation. The
     # generator is consumed in video order, so no_params' uniform draws do not depend on the chunk
-    out = _infer_in_chunks(inference, proposals[:, :observed], logits[:, :observed], kinematic, chunk, refinement=bool(ablation.refinement),
+    out = infer_in_chunks(inference, proposals[:, :observed], logits[:, :observed], kinematic, chunk, refinement=bool(ablation.refinement),
                            rigidness=bool(ablation.rigidness), params=bool(ablation.params), generator=gen)
     metrics = {}
     # Table 1: parameters
@@ -87,7 +87,7 @@ def evaluate_grounding(dynamics, visual, inference, scene, test: Rollouts, ablat
     metrics["midpoint_param_mae_pct"], metrics["midpoint_param_mae_pct_std"] = float(floor.mean()), float(floor.std())
     # refinement
     metrics["refine_mse_x1e4_before"] = position_mse_x1e4(proposals[:, :observed], truth_seen, movable)
-    refined = out["positions"] if ablation.refinement else _infer_in_chunks(inference, proposals[:, :observed], logits[:, :observed], kinematic, chunk)["positions"]
+    refined = out["positions"] if ablation.refinement else infer_in_chunks(inference, proposals[:, :observed], logits[:, :observed], kinematic, chunk)["positions"]
     metrics["refine_mse_x1e4_after"] = position_mse_x1e4(refined, truth_seen, movable)
     # grouping accuracy of the visual prior
     metrics["grouping_accuracy"] = float((out["grouping"].argmax(-1) == test.instance[None]).float().mean())
