@@ -57,3 +57,22 @@ def test_truth_proposals_without_noise_are_the_recorded_particles_and_their_inst
     assert torch.allclose(grouping, torch.nn.functional.one_hot(rollouts.instance, scene.n_instances).float().expand(2, -1, -1), atol=1e-4)
     with pytest.raises(ValueError, match="noise_std=-0.1: expected a standard deviation >= 0"):
         truth_proposals(rollouts.positions, rollouts.instance, scene.n_instances, -0.1)
+
+
+@pytest.mark.parametrize("val_span, starts", [(None, [2, 12, 22]), (0, [2]), (10, [2, 12])])
+def test_validation_windows_can_be_the_evaluations_alone(val_span, starts):
+    """val_window_span=0: one validation window per test video, at start_frame, where task=evaluate
+    observes; null keeps the training span (every ``observed`` frames)."""
+    from vgpl.data.grounding import GroundingDataModule
+
+    scene, rollouts, proposals = _data()
+    dm = GroundingDataModule("unused", scene, observed=10, horizon=5, start_frame=2, span=20, val_span=val_span)
+    dm.test, dm.test_proposals = rollouts, proposals
+    assert dm.val_dataloader().dataset.index == [(r, s) for r in range(2) for s in starts]
+
+
+def test_a_negative_validation_span_is_refused_by_name():
+    from vgpl.data.grounding import GroundingDataModule
+
+    with pytest.raises(ValueError, match="model.inference.val_window_span=-1: expected a frame count >= 0"):
+        GroundingDataModule("unused", _data()[0], val_span=-1)

@@ -57,9 +57,15 @@ class GroundingWindows(Dataset):
 
 class GroundingDataModule(L.LightningDataModule):
     def __init__(self, root: str, scene: Scene, observed: int = 10, horizon: int = 5, batch_size: int = 2,
-                 start_frame: int = 0, stride: int = 1, span: int | None = None, num_workers: int = 0) -> None:
+                 start_frame: int = 0, stride: int = 1, span: int | None = None, num_workers: int = 0,
+                 val_span: int | None = None) -> None:
+        """Training windows start every ``stride`` frames within ``span`` frames of ``start_frame``;
+        validation windows (on the test split) every ``observed`` frames within ``val_span`` (None:
+        ``span``; 0: only the evaluation's window, one per test video)."""
         super().__init__()
-        self.span = span
+        if val_span is not None and val_span < 0:
+            raise ValueError(f"model.inference.val_window_span={val_span}: expected a frame count >= 0, or null for window_span")
+        self.span, self.val_span = span, span if val_span is None else val_span
         self.root, self.scene = root, scene
         self.observed, self.horizon, self.batch_size = observed, horizon, batch_size
         self.start_frame, self.stride, self.num_workers = start_frame, stride, num_workers
@@ -85,5 +91,5 @@ class GroundingDataModule(L.LightningDataModule):
         return DataLoader(ds, batch_size=self.batch_size, shuffle=True, num_workers=self.num_workers, drop_last=len(ds) > self.batch_size)
 
     def val_dataloader(self) -> DataLoader:
-        ds = GroundingWindows(self.test, self.test_proposals, self.scene, self.observed, self.horizon, self.start_frame, self.observed, self.span)
+        ds = GroundingWindows(self.test, self.test_proposals, self.scene, self.observed, self.horizon, self.start_frame, self.observed, self.val_span)
         return DataLoader(ds, batch_size=self.batch_size, shuffle=False, num_workers=self.num_workers)

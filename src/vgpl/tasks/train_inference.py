@@ -30,7 +30,8 @@ def train_inference(cfg: DictConfig) -> dict:
     scene = scene_of(cfg)
     spec = cfg.model.inference
     dynamics, _ = load_stage(stage_checkpoint(cfg, "dynamics"), DynamicsPrior, env=scene.name)
-    dm = GroundingDataModule(cfg.data.root, scene, spec.observed, spec.net.horizon, spec.batch_size, cfg.env.get("start_frame", 0), spec.window_stride, spec.get("window_span"))
+    dm = GroundingDataModule(cfg.data.root, scene, spec.observed, spec.net.horizon, spec.batch_size, cfg.env.get("start_frame", 0), spec.window_stride, spec.get("window_span"),
+                             val_span=spec.get("val_window_span"))
     dm.setup()
     source = {"proposals_source": str(dm.train_proposals.attrs.get("source", "visual")),
               "proposals_noise_std": float(dm.train_proposals.attrs.get("noise_std", 0.0))}
