@@ -10,10 +10,10 @@ from vgpl.data.trajectories import Rollouts
 from vgpl.sim.envs import make_scene
 
 
-def _data(n_frames=60, proposal_frames=60):
-    scene = make_scene("rigid_fall", n_steps=n_frames)
+def _data(n_frames=60, proposal_frames=60, env="rigid_fall"):
+    scene = make_scene(env, n_steps=n_frames)
     r, n, m = 2, scene.n_particles, scene.n_instances
-    rollouts = Rollouts(torch.rand(r, n_frames, n, 3), torch.full((r, 1), -9.8), torch.zeros(r, n_frames, scene.action_dim),
+    rollouts = Rollouts(torch.rand(r, n_frames, n, 3), torch.as_tensor(scene.param_low).repeat(r, 1), torch.zeros(r, n_frames, scene.action_dim),
                         torch.as_tensor(scene.instance), torch.as_tensor(scene.rigid), torch.as_tensor(scene.param_low),
                         torch.as_tensor(scene.param_high), scene.name, torch.arange(r))
     proposals = Proposals(torch.rand(r, proposal_frames, n, 3), torch.randn(r, proposal_frames, n, m), torch.arange(r), {})
@@ -76,3 +76,20 @@ def test_a_negative_validation_span_is_refused_by_name():
 
     with pytest.raises(ValueError, match="model.inference.val_window_span=-1: expected a frame count >= 0"):
         GroundingDataModule("unused", _data()[0], val_span=-1)
+
+
+@pytest.mark.parametrize("env, start", [("rigid_fall", 0), ("fluid_cube", 0), ("mass_rope", 20)])
+def test_the_standard_preset_validates_where_evaluate_observes(env, start):
+    """One validation window per test video, at the env's start_frame (README: design, session 24)."""
+    from hydra import compose, initialize_config_dir
+
+    from tests.conftest import REPO
+    from vgpl.tasks.train_inference import grounding_datamodule
+
+    with initialize_config_dir(str(REPO / "conf"), version_base="1.3"):
+        cfg = compose("config", overrides=[f"env={env}", "experiment=standard"])
+    scene, rollouts, proposals = _data(n_frames=80, proposal_frames=80, env=env)
+    dm = grounding_datamodule(cfg, scene)
+    dm.test, dm.test_proposals = rollouts, proposals
+    assert dm.val_dataloader().dataset.index == [(0, start), (1, start)]
+    assert cfg.model.inference.net.separate_param_net  # the paper's two encoders (README: sessions 23-24)

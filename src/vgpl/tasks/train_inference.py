@@ -25,13 +25,19 @@ def inference_stage(ablation: DictConfig) -> str:
     return "inference" if ablation.rigidness else "inference_no_rigidness"
 
 
+def grounding_datamodule(cfg: DictConfig, scene) -> GroundingDataModule:
+    """The inference module's windows as ``cfg.model.inference`` and ``cfg.env`` set them (not yet set up)."""
+    spec = cfg.model.inference
+    return GroundingDataModule(cfg.data.root, scene, spec.observed, spec.net.horizon, spec.batch_size, cfg.env.get("start_frame", 0),
+                               spec.window_stride, spec.get("window_span"), val_span=spec.get("val_window_span"))
+
+
 def train_inference(cfg: DictConfig) -> dict:
     setup_run(cfg)
     scene = scene_of(cfg)
     spec = cfg.model.inference
     dynamics, _ = load_stage(stage_checkpoint(cfg, "dynamics"), DynamicsPrior, env=scene.name)
-    dm = GroundingDataModule(cfg.data.root, scene, spec.observed, spec.net.horizon, spec.batch_size, cfg.env.get("start_frame", 0), spec.window_stride, spec.get("window_span"),
-                             val_span=spec.get("val_window_span"))
+    dm = grounding_datamodule(cfg, scene)
     dm.setup()
     source = {"proposals_source": str(dm.train_proposals.attrs.get("source", "visual")),
               "proposals_noise_std": float(dm.train_proposals.attrs.get("noise_std", 0.0))}
