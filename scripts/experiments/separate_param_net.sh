@@ -32,3 +32,9 @@ ev() { # env arm [ablation, full] [curve videos, 8]
 for arm in last trained; do ev mass_rope $arm & ev rigid_fall $arm & wait; done
 # the ablations that need no training of their own, on the EMA (~5 min each)
 for ab in no_refinement no_params; do ev mass_rope last $ab 1 & ev rigid_fall last $ab 1 & wait; done
+# MassRope was still improving: resumed alone on both cores for 20 more minutes (the timer carries over)
+# python run.py env=mass_rope experiment=standard task=train_inference threads=2 model.inference.net.trajectory_start=both \
+#     model.inference.net.separate_param_net=true model.inference.ema.decay=0.998 trainer.limit_val_batches=50 \
+#     model.inference.trainer.max_steps=20000 model.inference.trainer.max_time=00:01:55:00 \
+#     ckpt.dynamics=checkpoints/standard/mass_rope/dynamics/last.ckpt paths.ckpt_dir=checkpoints/sep/mass_rope \
+#     hydra.run.dir=outputs/sep_inference_mass_rope_resumed ckpt_path=last
