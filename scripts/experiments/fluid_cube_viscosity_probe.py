@@ -18,9 +18,7 @@ import sys
 import numpy as np
 import torch
 
-from vgpl.data.grounding import proposals_path
-from vgpl.data.proposals import read_proposals
-from vgpl.data.trajectories import load_split
+from vgpl.data.grounding import split_with_proposals
 from vgpl.eval.linear_probe import Ridge
 from vgpl.eval.metrics import midpoint_error_pct, param_error_pct
 
@@ -44,13 +42,8 @@ def motion_statistics(positions: np.ndarray, container: np.ndarray, instance: np
 
 
 def load_with_proposals(root: str, split: str):
-    """(the split's first rollouts as Rollouts, their exported proposals [R, T, N, 3] as float64),
-    refused by file name when the proposals' rollout_ids are not the split's first R."""
-    path = proposals_path(root, "fluid_cube", split)
-    proposals = read_proposals(path)
-    rollouts = load_split(root, "fluid_cube", split, max_rollouts=len(proposals.rollout_ids))
-    if not torch.equal(rollouts.rollout_ids, proposals.rollout_ids):
-        raise ValueError(f"{path}: rollout_ids differ from the {split} split's first {len(proposals.rollout_ids)}")
+    """(the split's first rollouts as Rollouts, their exported proposals [R, T, N, 3] as float64)."""
+    rollouts, proposals = split_with_proposals(root, "fluid_cube", split)
     return rollouts, proposals.positions.double().numpy()
 
 

@@ -17,9 +17,7 @@ import numpy as np
 import torch
 
 from vgpl.checkpoint import load_stage, scene_of
-from vgpl.data.grounding import proposals_path
-from vgpl.data.proposals import read_proposals
-from vgpl.data.trajectories import load_split
+from vgpl.data.grounding import split_with_proposals
 from vgpl.eval.grounding import infer_in_chunks
 from vgpl.models.inference import InferenceModule
 
@@ -31,20 +29,17 @@ def main() -> None:
     parser.add_argument("--root", default="data/standard")
     parser.add_argument("--observed", type=int, default=10, help="frames observed (eval.observed)")
     args = parser.parse_args()
-    path = proposals_path(args.root, args.env, "test")
-    proposals = read_proposals(path)
-    test = load_split(args.root, args.env, "test", max_rollouts=len(proposals.rollout_ids))
-    if not torch.equal(test.rollout_ids, proposals.rollout_ids):
-        raise ValueError(f"{path}: rollout_ids differ from the test split's")
+    test, proposals = split_with_proposals(args.root, args.env, "test")
     for ckpt in args.checkpoints:
         module, cfg = load_stage(ckpt, InferenceModule, env=args.env)
         module.eval()
-        seen = slice(cfg.env.get("start_frame", 0), cfg.env.get("start_frame", 0) + args.observed)
+        scene, start = scene_of(cfg), cfg.env.get("start_frame", 0)
+        seen = slice(start, start + args.observed)
         with torch.no_grad():
             inferred = infer_in_chunks(module, proposals.positions[:, seen], proposals.logits[:, seen],
-                                       torch.as_tensor(scene_of(cfg).kinematic), chunk=10)["params_normalised"]
+                                       torch.as_tensor(scene.kinematic), chunk=10)["params_normalised"]
         truth = module.normalise_params(test.params)
-        for k, name in enumerate(scene_of(cfg).param_names):
+        for k, name in enumerate(scene.param_names):
             error = (inferred[:, k] - truth[:, k]) * 50  # % of the range: normalised units span [-1, 1]
             r = np.corrcoef(inferred[:, k].numpy(), truth[:, k].numpy())[0, 1] if inferred[:, k].std() > 0 else 0.0
             print(f"{ckpt}: {name} MAE {error.abs().mean():.1f}% of the range (bias {error.mean():+.1f}%), r = {r:.2f}, "

@@ -93,3 +93,26 @@ def test_the_standard_preset_validates_where_evaluate_observes(env, start):
     dm.test, dm.test_proposals = rollouts, proposals
     assert dm.val_dataloader().dataset.index == [(0, start), (1, start)]
     assert cfg.model.inference.net.separate_param_net  # the paper's two encoders (README: sessions 23-24)
+
+
+def test_proposals_of_other_rollouts_are_refused_by_file_name(tmp_path):
+    """split_with_proposals (the DataModule's and the diagnostics' loader) pairs a split with its
+    proposals only when their rollout_ids agree."""
+    from vgpl.data.grounding import proposals_path, split_with_proposals
+    from vgpl.data.proposals import write_proposals
+    from vgpl.data.shard import write_shard
+    from vgpl.tasks.generate import plan_shards, scene_attrs, simulate_shard
+
+    scene = make_scene("mass_rope", n_steps=12)
+    for plan in plan_shards(5, 0.8, 2):
+        shard = simulate_shard(scene, plan, seed=0, batch_size=2, render=False, device="cpu")
+        shard.attrs = {**scene_attrs(scene, 0), "split": plan.split, "shard": plan.index, "config_hash": "x"}
+        write_shard(plan.path(tmp_path / "mass_rope"), shard)
+    ids = torch.tensor([0, 1, 2])  # the first 3 training rollouts
+    path = proposals_path(tmp_path, "mass_rope", "train")
+    write_proposals(path, Proposals(torch.rand(3, 12, 95, 3), torch.zeros(3, 12, 95, 2), ids, {}))
+    rollouts, proposals = split_with_proposals(tmp_path, "mass_rope", "train")
+    assert rollouts.positions.shape[0] == 3 and torch.equal(rollouts.rollout_ids, proposals.rollout_ids)
+    write_proposals(path, Proposals(torch.rand(3, 12, 95, 3), torch.zeros(3, 12, 95, 2), ids.flip(0), {}))
+    with pytest.raises(DatasetError, match=r"mass_rope/proposals/train.h5: 'rollout_ids' do not match the dataset's; re-export"):
+        split_with_proposals(tmp_path, "mass_rope", "train")

@@ -19,6 +19,17 @@ def proposals_path(root: str | Path, env: str, split: str) -> Path:
     return Path(root) / env / "proposals" / f"{split}.h5"
 
 
+def split_with_proposals(root: str | Path, env: str, split: str) -> tuple[Rollouts, Proposals]:
+    """The split's first R rollouts and their exported proposals (which cover the first R), refused
+    by file name when the proposals' rollout_ids are not those rollouts'."""
+    path = proposals_path(root, env, split)
+    proposals = read_proposals(path)
+    rollouts = load_split(root, env, split, max_rollouts=len(proposals.rollout_ids))
+    if not torch.equal(rollouts.rollout_ids, proposals.rollout_ids):
+        raise DatasetError(f"{path}: 'rollout_ids' do not match the dataset's; re-export with task=export_proposals")
+    return rollouts, proposals
+
+
 class GroundingWindows(Dataset):
     """Item: proposals [T, N, 3], logits [T, N, M], positions [T + k, N, 3] (truth), planes
     [T + k, K, 4], params [P], kinematic [N]. Windows start at ``start_frame`` and every
@@ -74,14 +85,8 @@ class GroundingDataModule(L.LightningDataModule):
     def setup(self, stage: str | None = None) -> None:
         if self.train is None:
             env = self.scene.name
-            self.train_proposals = read_proposals(proposals_path(self.root, env, "train"))
-            self.test_proposals = read_proposals(proposals_path(self.root, env, "test"))
-            # the proposals cover the first R rollouts of each split
-            self.train = load_split(self.root, env, "train", max_rollouts=len(self.train_proposals.rollout_ids))
-            self.test = load_split(self.root, env, "test", max_rollouts=len(self.test_proposals.rollout_ids))
-            for split, r, p in (("train", self.train, self.train_proposals), ("test", self.test, self.test_proposals)):
-                if not torch.equal(r.rollout_ids, p.rollout_ids):
-                    raise DatasetError(f"{proposals_path(self.root, env, split)}: 'rollout_ids' do not match the dataset's; re-export with task=export_proposals")
+            self.train, self.train_proposals = split_with_proposals(self.root, env, "train")
+            self.test, self.test_proposals = split_with_proposals(self.root, env, "test")
             if self.train_proposals.positions.shape[2] != self.scene.n_particles:
                 raise DatasetError(f"{proposals_path(self.root, env, 'train')}: {self.train_proposals.positions.shape[2]} particles, env {env} has {self.scene.n_particles}")
             self.stats = NormStats.from_rollouts(self.train, torch.as_tensor(self.scene.kinematic))
