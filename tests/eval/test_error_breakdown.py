@@ -1,9 +1,11 @@
 """The future-error breakdown splits the paper's mean MSE exactly: per instance, into the
 instances' centroid errors and the rest, and by the physical parameter."""
 
+import pytest
 import torch
 
-from vgpl.eval.error_breakdown import error_breakdown
+from vgpl.eval.error_breakdown import error_breakdown, rollout_mse_x1e4
+from vgpl.eval.rollout import future_mse
 
 
 def test_translation_is_all_centroid_error_and_a_spin_none():
@@ -27,3 +29,14 @@ def test_translation_is_all_centroid_error_and_a_spin_none():
     spun[:, 0, 0, 0], spun[:, 0, 1, 0] = 0.02, -0.02  # opposite moves about the centroid: it stays put
     out = error_breakdown(spun, truth, instance, params, step=1)
     assert out["centroid_share"] < 1e-6 and out["mse"] > 0 and list(out)[-1] == "by_param0"
+
+
+def test_per_rollout_errors_average_to_the_papers_future_mse():
+    gen = torch.Generator().manual_seed(0)
+    pred, truth = torch.randn(5, 20, 7, 3, generator=gen) * 0.01, torch.zeros(5, 20, 7, 3)
+    pred[3, 19] += 1.0  # one rollout diverges at T+20: it carries the mean
+    per_rollout = rollout_mse_x1e4(pred, truth, 20)
+    assert per_rollout.shape == (5,) and int(per_rollout.argmax()) == 3
+    for k in (1, 20):
+        assert float(rollout_mse_x1e4(pred, truth, k).mean()) == pytest.approx(future_mse(pred, truth)[f"future_mse_x1e4@{k}"], rel=1e-5)
+    assert error_breakdown(pred, truth, torch.zeros(7, dtype=torch.long), torch.rand(5, 1, generator=gen), 20)["top10pct_share"] > 0.99

@@ -42,3 +42,9 @@ def test_params_csv_has_one_row_per_video_with_true_and_inferred_values():
     header, rows = param_rows(["gravity"], torch.tensor([[-10.0], [-5.5]]), torch.tensor([[-9.25], [-6.0]]), torch.tensor([7, 3]))
     assert csv_text(header, rows) == "rollout_id,true_gravity,inferred_gravity\r\n7,-10,-9.25\r\n3,-5.5,-6\r\n"
     assert param_rows(["a", "b"], torch.zeros(1, 2), torch.ones(1, 2))[0] == ["rollout_id", "true_a", "inferred_a", "true_b", "inferred_b"]
+
+
+def test_params_csv_carries_extra_per_video_columns_after_the_parameters():
+    header, rows = param_rows(["stiffness"], torch.tensor([[0.3], [0.8]]), torch.tensor([[0.35], [0.7]]), None,
+                              {"future_mse_x1e4@20": torch.tensor([12.5, 1.0e4])})
+    assert csv_text(header, rows) == "rollout_id,true_stiffness,inferred_stiffness,future_mse_x1e4@20\r\n0,0.3,0.35,12.5\r\n1,0.8,0.7,10000\r\n"

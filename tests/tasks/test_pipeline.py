@@ -59,6 +59,11 @@ def test_inferred_parameters_beat_the_range_midpoint(tiny):
     errors = [(float(r["inferred_gravity"]) - float(r["true_gravity"])) / 10.0 * 100 for r in rows]
     assert sum(map(abs, errors)) / len(errors) == pytest.approx(full["param_mae_pct"], abs=1e-3)
     assert sum(errors) / len(errors) == pytest.approx(full["param_bias_pct"], abs=1e-3)
+    per_video = [float(r["future_mse_x1e4@10"]) for r in rows]  # eval.n_steps=10: the record's T+10 again
+    assert sum(per_video) / len(per_video) == pytest.approx(full["future_mse_x1e4@10"], rel=1e-4)
+    breakdown = full["breakdown@10"]
+    assert breakdown["mse"] == pytest.approx(full["future_mse_x1e4@10"], rel=1e-5)
+    assert sum(b["rollouts"] for b in breakdown["by_inferred_gravity"]) == sum(b["rollouts"] for b in breakdown["by_gravity"]) == len(rows)
     assert full["refine_mse_x1e4_after"] < full["refine_mse_x1e4_before"]
     assert 0 < full["future_mse_x1e4@1"] < full["future_mse_x1e4@10"]
 

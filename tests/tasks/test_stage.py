@@ -13,7 +13,7 @@ from torch.utils.data import DataLoader, TensorDataset
 
 from tests.conftest import REPO
 from vgpl.tasks.pipeline import training_summary
-from vgpl.tasks.stage import stopping, trainer_kwargs
+from vgpl.tasks.stage import snapshots, stopping, trainer_kwargs
 
 
 class SlowRegression(L.LightningModule):
@@ -84,3 +84,14 @@ def test_the_standard_stages_after_the_prior_are_budgeted_in_steps(stage):
     kwargs = trainer_kwargs(cfg, cfg.model[stage])
     assert kwargs["max_epochs"] == -1 and kwargs["max_steps"] > 0 and kwargs["max_time"]
     assert trainer_kwargs(cfg, cfg.model.dynamics)["max_epochs"] == 3
+
+
+def test_snapshots_keep_a_checkpoint_every_n_steps_named_by_its_step(tmp_path):
+    data = DataLoader(TensorDataset(torch.randn(64, 2), torch.randn(64, 1)), batch_size=4)  # 16 steps an epoch
+    trainer = L.Trainer(logger=False, callbacks=[snapshots(tmp_path, 5)], enable_progress_bar=False, enable_model_summary=False, max_steps=22)
+    trainer.fit(SlowRegression(0.0), data)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["step10.ckpt", "step15.ckpt", "step20.ckpt", "step5.ckpt"]
+    for n in (5, 10, 15, 20):
+        assert torch.load(tmp_path / f"step{n}.ckpt", weights_only=False)["global_step"] == n
+    with pytest.raises(ValueError, match="snapshot_every_n_steps=0"):
+        snapshots(tmp_path, 0)

@@ -9,6 +9,13 @@ import torch
 from vgpl.nn.rigid import soft_centroids
 
 
+def rollout_mse_x1e4(pred: torch.Tensor, truth: torch.Tensor, step: int) -> torch.Tensor:
+    """Squared position error x 1e4 of each rollout at predicted frame ``step`` (1-based, T+k),
+    the mean over particles and coordinates [R]; its mean over rollouts is the future MSE.
+    pred, truth [R, T, N, 3]."""
+    return ((pred[:, step - 1] - truth[:, step - 1]) ** 2).mean((1, 2)) * 1e4
+
+
 def error_breakdown(
     pred: torch.Tensor, truth: torch.Tensor, instance: torch.Tensor, params: torch.Tensor, step: int,
     param_names: list[str] | None = None, bins: int = 3,
@@ -26,7 +33,7 @@ def error_breakdown(
     """
     diff = pred[:, step - 1] - truth[:, step - 1]  # [R, N, 3]
     d2 = diff**2
-    per_rollout = d2.mean((1, 2)) * 1e4
+    per_rollout = rollout_mse_x1e4(pred, truth, step)
     instance = torch.as_tensor(instance, dtype=torch.long)
     m = int(instance.max()) + 1
     one_hot = torch.nn.functional.one_hot(instance, m).to(diff).expand(diff.shape[0], -1, -1)  # [R, N, M]

@@ -72,12 +72,15 @@ def markdown(header: list[str], rows: list[list[str]]) -> str:
     return "\n".join(lines)
 
 
-def param_rows(names: list[str], truth, inferred, rollout_ids=None) -> tuple[list[str], list[list[str]]]:
+def param_rows(names: list[str], truth, inferred, rollout_ids=None, columns: dict | None = None) -> tuple[list[str], list[list[str]]]:
     """params.csv of an evaluation: one row per test video with its true and inferred value of each
-    parameter (truth, inferred [R, P] physical; rollout_ids [R], default 0 .. R - 1)."""
+    parameter (truth, inferred [R, P] physical; rollout_ids [R], default 0 .. R - 1), then one
+    column per entry of ``columns`` (name -> [R] values, e.g. the video's future MSE)."""
     ids = list(range(len(truth))) if rollout_ids is None else [int(i) for i in rollout_ids]
-    header = ["rollout_id"] + [f"{kind}_{n}" for n in names for kind in ("true", "inferred")]
-    rows = [[str(i)] + [f"{float(v):.6g}" for p in range(len(names)) for v in (t[p], x[p])] for i, t, x in zip(ids, truth, inferred)]
+    columns = columns or {}
+    header = ["rollout_id"] + [f"{kind}_{n}" for n in names for kind in ("true", "inferred")] + list(columns)
+    rows = [[str(i)] + [f"{float(v):.6g}" for p in range(len(names)) for v in (t[p], x[p])] + [f"{float(c[r]):.6g}" for c in columns.values()]
+            for r, (i, t, x) in enumerate(zip(ids, truth, inferred))]
     return header, rows
 
 

@@ -47,8 +47,8 @@ def fit(cfg: DictConfig, stage: str, stage_cfg: DictConfig, model: L.LightningMo
     ``ckpt_path=last`` resumes from that folder's last.ckpt (Lightning's own resolution);
     ``stage_cfg.trainer`` overrides the ``trainer`` group for this stage; ``stage_cfg.ema.decay``
     (when set) validates and saves an exponential moving average of the weights
-    (vgpl.weight_averaging). Returns the trainer
-    and the path of last.ckpt.
+    (vgpl.weight_averaging); ``stage_cfg.snapshot_every_n_steps`` (when set) keeps a
+    ``step<N>.ckpt`` every N steps beside last.ckpt. Returns the trainer and the path of last.ckpt.
     """
     folder = stage_dir(cfg, stage)
     folder.mkdir(parents=True, exist_ok=True)
@@ -58,6 +58,8 @@ def fit(cfg: DictConfig, stage: str, stage_cfg: DictConfig, model: L.LightningMo
     OmegaConf.save(OmegaConf.create(saved), folder / "config.yaml")
     kwargs = trainer_kwargs(cfg, stage_cfg)
     callbacks = [ModelCheckpoint(dirpath=folder, filename="best", monitor=monitor, save_last=True)]
+    if stage_cfg.get("snapshot_every_n_steps") is not None:
+        callbacks.append(snapshots(folder, int(stage_cfg.snapshot_every_n_steps)))
     ema = stage_cfg.get("ema") or {}
     if ema.get("decay") is not None:
         callbacks.append(ExponentialMovingAverage(float(ema.decay), int(ema.get("start_step", 0))))
@@ -81,6 +83,16 @@ def fit(cfg: DictConfig, stage: str, stage_cfg: DictConfig, model: L.LightningMo
         log.warning("%s: trainer.max_time=%s stopped training after %d of %d steps; its results depend on this machine's speed",
                     stage, kwargs.get("max_time"), ended["steps"], ended["max_steps"])
     return trainer, folder / "last.ckpt"
+
+
+def snapshots(folder: str | Path, every_n_steps: int) -> ModelCheckpoint:
+    """Keeps ``<folder>/step<N>.ckpt`` every ``every_n_steps`` training steps, all of them (the
+    course of a long run, to evaluate afterwards); with an EMA they hold the averaged weights, as
+    last.ckpt, and ``trained_weights_checkpoint`` gives the trained ones."""
+    if every_n_steps < 1:
+        raise ValueError(f"snapshot_every_n_steps={every_n_steps}: expected a positive number of steps, or null for none")
+    return ModelCheckpoint(dirpath=folder, filename="step{step}", every_n_train_steps=every_n_steps, save_top_k=-1,
+                           auto_insert_metric_name=False, save_on_train_epoch_end=False)
 
 
 def stopping(trainer: L.Trainer) -> dict:
