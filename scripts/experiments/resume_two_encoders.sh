@@ -21,11 +21,7 @@ wait
 for env in fluid_cube mass_rope; do
   python -c "from vgpl.weight_averaging import trained_weights_checkpoint as t; t('checkpoints/sep/$env/inference/last.ckpt', 'checkpoints/sep/$env/inference/trained.ckpt')"
 done
-ev() { # env arm [ablation, full] [curve videos, 8]
-  CK=checkpoints/standard/$1
-  python run.py env=$1 experiment=standard task=evaluate ablation=${3:-full} eval.max_rollouts=100 eval.curve_rollouts=${4:-8} threads=1 \
-    paths.ckpt_dir=checkpoints/sep/$1 ckpt.dynamics=$CK/dynamics/last.ckpt ckpt.visual=$CK/visual/last.ckpt \
-    ckpt.inference=checkpoints/sep/$1/inference/$2.ckpt hydra.run.dir=outputs/s25_evaluate_$1_${3:-$2} > /tmp/s25_evaluate_$1_${3:-$2}.log 2>&1
-}
+PREFIX=s25_evaluate
+source "$(dirname "$0")/evaluate_two_encoders.sh"  # ev ENV ARM [ABLATION] [CURVE_VIDEOS]
 for arm in last trained; do ev fluid_cube $arm & ev mass_rope $arm & wait; done
-ev mass_rope last no_params 1
+ev mass_rope last no_params 1 & ev mass_rope last no_refinement 1 & wait

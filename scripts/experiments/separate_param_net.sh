@@ -23,12 +23,7 @@ for env in mass_rope rigid_fall; do
   python scripts/experiments/inferred_parameters.py --env $env checkpoints/sep/$env/inference/{last,trained}.ckpt
 done
 # both arms of each env on the 100 test videos, two evaluations at a time on one thread each (~8 min)
-ev() { # env arm [ablation, full] [curve videos, 8]
-  CK=checkpoints/standard/$1
-  python run.py env=$1 experiment=standard task=evaluate ablation=${3:-full} eval.max_rollouts=100 eval.curve_rollouts=${4:-8} threads=1 \
-    paths.ckpt_dir=checkpoints/sep/$1 ckpt.dynamics=$CK/dynamics/last.ckpt ckpt.visual=$CK/visual/last.ckpt \
-    ckpt.inference=checkpoints/sep/$1/inference/$2.ckpt hydra.run.dir=outputs/sep_evaluate_$1_${3:-$2} > /tmp/sep_evaluate_$1_${3:-$2}.log 2>&1
-}
+source "$(dirname "$0")/evaluate_two_encoders.sh"  # ev ENV ARM [ABLATION] [CURVE_VIDEOS]
 for arm in last trained; do ev mass_rope $arm & ev rigid_fall $arm & wait; done
 # the ablations that need no training of their own, on the EMA (~5 min each)
 for ab in no_refinement no_params; do ev mass_rope last $ab 1 & ev rigid_fall last $ab 1 & wait; done
