@@ -125,13 +125,18 @@ def load_records(folder: str | Path) -> list[dict]:
 
 
 def report(cfg: DictConfig) -> dict:
-    """task=report task.dir=<multirun folder>: one Table 1 and Table 2 from all its evaluations."""
-    folder = cfg.task.get("dir")
-    if folder in (None, "???") or not Path(folder).is_dir():
-        raise ValueError(f"task.dir={folder!r}: expected the folder of a task=evaluate (multi)run")
-    records = load_records(folder)
-    if not records:
-        raise ValueError(f"task.dir={folder}: no evaluation metrics.json under it (run task=evaluate first)")
+    """task=report task.dir=<folder>: one Table 1 and Table 2 from every evaluation under it (a
+    multirun folder), or under each of a list of folders (``task.dir='[outputs/a,outputs/b]'``)."""
+    folders = cfg.task.get("dir")
+    folders = [folders] if folders is None or isinstance(folders, str) else list(folders)
+    records = []
+    for folder in folders:
+        if folder in (None, "???") or not Path(folder).is_dir():
+            raise ValueError(f"task.dir={folder!r}: expected the folder of a task=evaluate (multi)run, or a list of them")
+        found = load_records(folder)
+        if not found:
+            raise ValueError(f"task.dir={folder}: no evaluation metrics.json under it (run task=evaluate first)")
+        records += found
     out = Path(cfg.paths.output_dir)
     text = write_tables(records, out)
     print(text)

@@ -1,0 +1,21 @@
+#!/usr/bin/env bash
+# Session 26 (CPU, 2 cores, AMD EPYC), issue 4: the `no_rigidness` ablation (every instance rolled
+# as non-rigid, Q = 0) trains an inference module of its own; sessions 24-25's two-encoder full
+# modules had none, so their four-way study lacked that row. Here RigidFall's and MassRope's
+# no_rigidness modules with the full modules' settings (separate parameter encoder, EMA 0.998),
+# side by side on one thread each for about the wall time of the full modules they are compared
+# with (RigidFall: 3,060 steps in 1:35; MassRope: session 24's step2575 in 1:35), then task=evaluate
+# on the 100 test videos. The full, no_params and no_refinement rows are session 24's
+# (outputs/sep_evaluate_*; separate_param_net.sh). README: "The four-way study with two encoders".
+# Usage: bash scripts/experiments/no_rigidness_two_encoders.sh [max_time, 00:01:32:00]
+set -euo pipefail
+TIME=${1:-00:01:32:00}
+for env in rigid_fall mass_rope; do
+  python run.py env=$env experiment=standard task=train_inference ablation=no_rigidness threads=1 \
+    model.inference.net.trajectory_start=both model.inference.net.separate_param_net=true \
+    model.inference.ema.decay=0.998 trainer.limit_val_batches=50 model.inference.snapshot_every_n_steps=500 \
+    model.inference.trainer.max_steps=20000 model.inference.trainer.max_time=$TIME \
+    ckpt.dynamics=checkpoints/standard/$env/dynamics/last.ckpt paths.ckpt_dir=checkpoints/sep/$env \
+    hydra.run.dir=outputs/s26_no_rigidness_$env > /tmp/s26_no_rigidness_$env.log 2>&1 &
+done
+wait
