@@ -2,10 +2,12 @@
 
 from __future__ import annotations
 
+import pytest
 import torch
 
 from vgpl.eval.metrics import midpoint_error_pct
-from vgpl.eval.tables import MIDPOINT_ROW, csv_text, param_rows, report_markdown, table1_rows
+from vgpl.eval.paired import paired_bootstrap
+from vgpl.eval.tables import MIDPOINT_ROW, PER_VIDEO, csv_text, paired_rows, paired_steps, param_rows, report_markdown, table1_rows
 
 
 def _record(env: str, ablation: str, mae: float, midpoint: float | None = None) -> dict:
@@ -48,3 +50,35 @@ def test_params_csv_carries_extra_per_video_columns_after_the_parameters():
     header, rows = param_rows(["stiffness"], torch.tensor([[0.3], [0.8]]), torch.tensor([[0.35], [0.7]]), None,
                               {"future_mse_x1e4@20": torch.tensor([12.5, 1.0e4])})
     assert csv_text(header, rows) == "rollout_id,true_stiffness,inferred_stiffness,future_mse_x1e4@20\r\n0,0.3,0.35,12.5\r\n1,0.8,0.7,10000\r\n"
+
+
+def _with_videos(env: str, ablation: str, errors: list[float], first_id: int = 900) -> dict:
+    return _record(env, ablation, 10.0) | {PER_VIDEO.format(20): {str(first_id + i): e for i, e in enumerate(errors)}}
+
+
+def test_bootstrap_of_a_constant_gap_is_that_gap_and_of_noise_straddles_zero():
+    reference = torch.linspace(10, 100, 50)
+    shifted = paired_bootstrap(reference, reference + 3.0)
+    assert shifted["mean_diff"] == pytest.approx(3.0) and shifted["low"] == pytest.approx(3.0) and shifted["high"] == pytest.approx(3.0)
+    assert shifted["reference_lower_share"] == 1.0 and shifted["videos"] == 50
+    noise = torch.tensor([1.0, -1.0] * 25) * torch.linspace(1, 5, 50)
+    straddle = paired_bootstrap(reference, reference + noise)
+    assert straddle["low"] < 0 < straddle["high"] and straddle["reference_lower_share"] == 0.5
+
+
+def test_paired_table_says_whether_vgpl_is_lower_on_the_same_videos():
+    full = _with_videos("mass_rope", "full", [10.0, 20.0, 30.0, 40.0])
+    records = [full,
+               _with_videos("mass_rope", "no_refinement", [15.0, 26.0, 34.0, 46.0]),  # higher on every video
+               _with_videos("mass_rope", "no_params", [12.0, 14.0, 33.0, 38.0]),  # mixed
+               _with_videos("mass_rope", "no_rigidness", [1.0, 2.0, 3.0, 4.0, 5.0], first_id=902)]  # only 902, 903 shared
+    assert paired_steps(records) == [20]
+    header, rows = paired_rows(records, 20)
+    by = {r[1]: dict(zip(header, r)) for r in rows}
+    assert by["VGPL w/o refinement"]["VGPL is"] == "lower" and by["VGPL w/o refinement"]["videos where VGPL is lower"] == "100%"
+    assert by["VGPL w/o refinement"]["mean difference (ablation - VGPL) [95% bootstrap]"].startswith("+5.250 [")
+    assert by["VGPL w/o parameter estimation"]["VGPL is"] == "not distinguishable"
+    assert by["VGPL w/o rigidness"]["videos"] == "2" and by["VGPL w/o rigidness"]["VGPL T+20"] == "35.000"  # videos 902, 903
+    assert by["VGPL w/o rigidness"]["VGPL is"] == "higher"
+    assert "## Is VGPL lower at T+20?" in report_markdown(records)
+    assert "Is VGPL lower" not in report_markdown([_record("mass_rope", "full", 3.0)])  # older records: no section

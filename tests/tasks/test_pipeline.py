@@ -15,6 +15,7 @@ from tests.conftest import REPO
 from tests.notebook import output_types, run_notebook, text_output
 from vgpl.checkpoint import CheckpointError
 from vgpl.data.trajectories import load_split
+from vgpl.eval.tables import PER_VIDEO
 from vgpl.tasks.evaluate import evaluate, report
 from vgpl.tasks.pipeline import pipeline
 
@@ -61,6 +62,8 @@ def test_inferred_parameters_beat_the_range_midpoint(tiny):
     assert sum(errors) / len(errors) == pytest.approx(full["param_bias_pct"], abs=1e-3)
     per_video = [float(r["future_mse_x1e4@10"]) for r in rows]  # eval.n_steps=10: the record's T+10 again
     assert sum(per_video) / len(per_video) == pytest.approx(full["future_mse_x1e4@10"], rel=1e-4)
+    assert full[PER_VIDEO.format(10)] == pytest.approx({r["rollout_id"]: v for r, v in zip(rows, per_video)}, rel=1e-5)  # the record pairs videos
+    assert "| rigid_fall | VGPL w/o parameter estimation | 24 |" in (tmp / "run/report.md").read_text()  # every test video, paired
     breakdown = full["breakdown@10"]
     assert breakdown["mse"] == pytest.approx(full["future_mse_x1e4@10"], rel=1e-5)
     assert sum(b["rollouts"] for b in breakdown["by_inferred_gravity"]) == sum(b["rollouts"] for b in breakdown["by_gravity"]) == len(rows)

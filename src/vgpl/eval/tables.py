@@ -5,6 +5,11 @@ from __future__ import annotations
 
 import csv
 import io
+import re
+
+import torch
+
+from vgpl.eval.paired import paired_bootstrap
 
 ENVS = ("mass_rope", "rigid_fall", "fluid_cube")  # the paper's column order
 HORIZONS = (1, 5, 10, 20)
@@ -17,6 +22,7 @@ ROWS = {  # (method, ablation) -> row name, in the paper's order
 }
 TABLE1_ROWS = [("densephysnet", "full"), ("vgpl", "no_rigidness"), ("vgpl", "full")]
 TABLE2_ROWS = [("vgpl", "no_rigidness"), ("vgpl", "no_refinement"), ("vgpl", "no_params"), ("vgpl", "full")]
+PER_VIDEO = "per_video_future_mse_x1e4@{}"  # record key: {rollout id (str): that video's MSE x 1e4 at T+k}
 
 
 def _key(record: dict) -> tuple[str, str]:
@@ -66,6 +72,43 @@ def table2_rows(records: list[dict]) -> tuple[list[str], list[list[str]]]:
     return ["method"] + [f"{e} T+{k}" for e in _envs(records) for k in HORIZONS], _method_rows(records, TABLE2_ROWS, cells)
 
 
+def _mse(value, sign: str = "") -> str:
+    """An MSE x 1e4 as Table 2 prints it, in exponent form once a rollout has diverged."""
+    value = float(value)
+    return f"{value:{sign}.3f}" if abs(value) < 1e5 else f"{value:{sign}.3e}"
+
+
+def paired_rows(records: list[dict], step: int) -> tuple[list[str], list[list[str]]]:
+    """Header and rows: per env, each ablation against VGPL at T+``step`` on the videos both
+    evaluated (records with per-video errors, ``PER_VIDEO``): the means, the mean difference with
+    its 95% bootstrap interval, how often VGPL is the lower, the medians, and the verdict."""
+    key = PER_VIDEO.format(step)
+    index = _index([r for r in records if key in r])
+    rows = []
+    for env in _envs(records):
+        full = index.get(("vgpl", "full", env))
+        for name in TABLE2_ROWS[:-1]:
+            other = index.get((*name, env))
+            ids = sorted(set(full[key]) & set(other[key]), key=int) if full and other else []
+            if not ids:
+                continue
+            a, b = (torch.tensor([r[key][i] for i in ids]) for r in (full, other))
+            s = paired_bootstrap(a, b)
+            verdict = "lower" if s["low"] > 0 else "higher" if s["high"] < 0 else "not distinguishable"
+            rows.append([env, ROWS[name], str(len(ids)), _mse(a.mean()), _mse(b.mean()),
+                         f"{_mse(s['mean_diff'], '+')} [{_mse(s['low'], '+')}, {_mse(s['high'], '+')}]",
+                         f"{100 * s['reference_lower_share']:.0f}%", f"{_mse(a.median())} / {_mse(b.median())}", verdict])
+    header = ["env", "ablation", "videos", f"VGPL T+{step}", f"ablation T+{step}", "mean difference (ablation - VGPL) [95% bootstrap]",
+              "videos where VGPL is lower", "medians (VGPL / ablation)", "VGPL is"]
+    return header, rows
+
+
+def paired_steps(records: list[dict]) -> list[int]:
+    """The T+k of every per-video error the records carry."""
+    pattern = re.compile(re.escape(PER_VIDEO.format("")) + r"(\d+)$")
+    return sorted({int(m.group(1)) for r in records for k in r if (m := pattern.match(k))})
+
+
 def markdown(header: list[str], rows: list[list[str]]) -> str:
     lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
     lines += ["| " + " | ".join(r) + " |" for r in rows]
@@ -102,4 +145,8 @@ def report_markdown(records: list[dict]) -> str:
         if rig:
             parts += ["", "## Rigidness: probability of the correct label at the trained T", markdown(
                 ["env", "object type", "P(correct)"], [[e, t, f"{v:.3f}"] for e, t, v in rig])]
+    for step in paired_steps(records):
+        header, rows = paired_rows(records, step)
+        if rows:
+            parts += ["", f"## Is VGPL lower at T+{step}? The same test videos, paired", markdown(header, rows)]
     return "\n".join(parts) + "\n"

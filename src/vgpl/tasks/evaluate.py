@@ -22,7 +22,7 @@ from vgpl.eval import figures
 from vgpl.eval.error_breakdown import error_breakdown, rollout_mse_x1e4
 from vgpl.eval.grounding import evaluate_grounding
 from vgpl.eval.preview import write_gif
-from vgpl.eval.tables import csv_text, param_rows, report_markdown, table1_rows, table2_rows
+from vgpl.eval.tables import PER_VIDEO, csv_text, param_rows, report_markdown, table1_rows, table2_rows
 from vgpl.eval.tensorboard_media import add_gif, rollout_video
 from vgpl.models.dynamics_prior import DynamicsPrior
 from vgpl.models.inference import InferenceModule
@@ -80,10 +80,11 @@ def evaluate(cfg: DictConfig) -> dict:
     names = list(scene.param_names)
     record[f"breakdown@{last}"] = error_breakdown(result.prediction, result.truth, torch.as_tensor(scene.instance), torch.cat([test.params, result.params], 1),
                                                   last, names + [f"inferred_{n}" for n in names])
+    per_video = {f"future_mse_x1e4@{last}": rollout_mse_x1e4(result.prediction, result.truth, last)}
+    record[PER_VIDEO.format(last)] = {str(int(i)): float(v) for i, v in zip(test.rollout_ids, per_video[f"future_mse_x1e4@{last}"])}  # paired tables
     out = Path(cfg.paths.output_dir)
     out.mkdir(parents=True, exist_ok=True)
     (out / "metrics.json").write_text(json.dumps(record, indent=1))
-    per_video = {f"future_mse_x1e4@{last}": rollout_mse_x1e4(result.prediction, result.truth, last)}
     (out / "params.csv").write_text(csv_text(*param_rows(names, test.params, result.params, test.rollout_ids, per_video)))
     notes = (f"\nProposals: the recorded particles + N(0, {noise_std:g}^2) m (eval.proposals=truth), not the visual prior: a diagnostic.\n"
              if truth else "")
