@@ -9,13 +9,15 @@ import pytest
 from hydra import compose, initialize_config_dir
 
 from tests.conftest import REPO
+from vgpl.eval.tables import PER_VIDEO
 from vgpl.tasks.evaluate import report
 
 
 def _evaluation(folder: Path, env: str, ablation: str, mae: float, t20: float) -> Path:
     folder.mkdir(parents=True)
     record = {"env": env, "method": "vgpl", "ablation": ablation, "param_mae_pct": mae, "param_mae_pct_std": 1.0,
-              **{f"future_mse_x1e4@{t}": t20 * t / 20 for t in (1, 5, 10, 20)}}
+              **{f"future_mse_x1e4@{t}": t20 * t / 20 for t in (1, 5, 10, 20)},
+              PER_VIDEO.format(20): {"900": t20 - 1.0, "901": t20 + 1.0}}
     (folder / "metrics.json").write_text(json.dumps(record))
     return folder
 
@@ -34,6 +36,8 @@ def test_a_list_of_separately_run_evaluations_makes_one_table(tmp_path):
     text = (tmp_path / "report/report.md").read_text()
     assert "| VGPL | 15.4% (1.0) |" in text and "| VGPL w/o rigidness | 20.0% (1.0) |" in text
     assert "113.400" in (tmp_path / "report/table2.csv").read_text()
+    paired = (tmp_path / "report/paired_t20.csv").read_text().splitlines()  # the two runs' videos, paired
+    assert len(paired) == 2 and paired[1].startswith('mass_rope,VGPL w/o rigidness,2,113.400,150.000,"+36.600 [+36.600, +36.600]",100%')
     assert _report(tmp_path, str(tmp_path))["n_records"] == 2  # one folder: everything under it
 
 

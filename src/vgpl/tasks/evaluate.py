@@ -22,7 +22,7 @@ from vgpl.eval import figures
 from vgpl.eval.error_breakdown import error_breakdown, rollout_mse_x1e4
 from vgpl.eval.grounding import evaluate_grounding
 from vgpl.eval.preview import write_gif
-from vgpl.eval.tables import PER_VIDEO, csv_text, param_rows, report_markdown, table1_rows, table2_rows
+from vgpl.eval.tables import PER_VIDEO, csv_text, paired_rows, paired_steps, param_rows, report_markdown, table1_rows, table2_rows
 from vgpl.eval.tensorboard_media import add_gif, rollout_video
 from vgpl.models.dynamics_prior import DynamicsPrior
 from vgpl.models.inference import InferenceModule
@@ -34,12 +34,17 @@ log = logging.getLogger(__name__)
 
 
 def write_tables(records: list[dict], out: Path, notes: str = "") -> str:
-    """report.md (the tables, then ``notes``), table1.csv and table2.csv in ``out``; returns the Markdown."""
+    """report.md (the tables, then ``notes``), table1.csv, table2.csv and, where records carry
+    per-video errors, paired_t<k>.csv in ``out``; returns the Markdown."""
     out.mkdir(parents=True, exist_ok=True)
     text = report_markdown(records) + notes
     (out / "report.md").write_text(text)
     (out / "table1.csv").write_text(csv_text(*table1_rows(records)))
     (out / "table2.csv").write_text(csv_text(*table2_rows(records)))
+    for step in paired_steps(records):  # each ablation against VGPL on the same videos
+        header, rows = paired_rows(records, step)
+        if rows:
+            (out / f"paired_t{step}.csv").write_text(csv_text(header, rows))
     return text
 
 
