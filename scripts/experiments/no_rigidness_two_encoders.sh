@@ -19,3 +19,16 @@ for env in rigid_fall mass_rope; do
     hydra.run.dir=outputs/s26_no_rigidness_$env > /tmp/s26_no_rigidness_$env.log 2>&1 &
 done
 wait
+# (as run in session 26: RigidFall 3,090 steps, MassRope 2,511)
+# no_rigidness and the full module of equal training time (EMA: RigidFall step3060 = session 24's
+# last, MassRope step2575 = session 24's last) on the 100 test videos, two at a time on one thread
+# each; the full modules re-evaluated so both records carry per-video errors for the paired table.
+PREFIX=s26
+source "$(dirname "$0")/evaluate_two_encoders.sh"  # ev ENV ARM [ABLATION] [CURVE_VIDEOS]
+ev rigid_fall last no_rigidness 1 & ev mass_rope last no_rigidness 1 & wait  # (ARM unused: inference_no_rigidness/last.ckpt)
+ev rigid_fall step3060 full 1 & ev mass_rope step2575 full 1 & wait
+for env in rigid_fall mass_rope; do
+  python run.py task=report "task.dir=[outputs/s26_${env}_full,outputs/s26_${env}_no_rigidness]" hydra.run.dir=outputs/s26_report_$env
+done
+# (not run for lack of session time: no_params / no_refinement re-evaluated with per-video errors;
+#  their session-24 means are in outputs/sep_evaluate_<env>_{no_params,no_refinement})
