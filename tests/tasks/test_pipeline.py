@@ -183,7 +183,8 @@ def test_hydra_multirun_of_the_four_ablations_reports_one_table(tiny):
     proc = run(*common, "task=report", f"task.dir={sweep}", f"hydra.run.dir={tmp}/sweep_report")
     assert proc.returncode == 0, proc.stderr[-2000:]
     table = (tmp / "sweep_report/report.md").read_text()
-    assert table.count("| VGPL |") == 2 and table.count("| VGPL w/o rigidness |") == 2  # Table 1 and Table 2
+    assert table.count("\n| VGPL |") == 2 and table.count("\n| VGPL w/o rigidness |") == 2  # Table 1 and Table 2
+    assert table.count("\n| rigid_fall | VGPL w/o") == 3  # and each ablation paired with VGPL on the same videos
     assert "| VGPL w/o refinement |" in table and "| VGPL w/o parameter estimation |" in table  # Table 2
     swept = {r["ablation"]: r for r in map(json.loads, (p.read_text() for p in sweep.glob("*/metrics.json")))}
     for record in result["records"]:
