@@ -1,5 +1,6 @@
 """Is VGPL's future error really lower than an ablation's? The paper's Table 2 compares means over
-test videos, and a few diverging videos can decide a mean. This pairs the videos (same rollout ids) and bootstraps the mean difference, so a table can say when a gap is noise."""
+test videos, and a few diverging videos can decide a mean. This pairs the videos (same rollout ids)
+and bootstraps the mean difference, so a table can say when a gap is noise."""
 
 from __future__ import annotations
 

@@ -109,6 +109,13 @@ def paired_steps(records: list[dict]) -> list[int]:
     return sorted({int(m.group(1)) for r in records for k in r if (m := pattern.match(k))})
 
 
+def paired_tables(records: list[dict]) -> dict[int, tuple[list[str], list[list[str]]]]:
+    """``paired_rows`` at every T+k the records carry per-video errors for, where any pair exists
+    (each is a bootstrap: computed once for report.md and the CSV)."""
+    tables = {step: paired_rows(records, step) for step in paired_steps(records)}
+    return {step: table for step, table in tables.items() if table[1]}
+
+
 def markdown(header: list[str], rows: list[list[str]]) -> str:
     lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
     lines += ["| " + " | ".join(r) + " |" for r in rows]
@@ -133,7 +140,9 @@ def csv_text(header: list[str], rows: list[list[str]]) -> str:
     return buf.getvalue()
 
 
-def report_markdown(records: list[dict]) -> str:
+def report_markdown(records: list[dict], paired: dict | None = None) -> str:
+    """Table 1, Table 2, refinement, rigidness and the paired tables (``paired_tables(records)``
+    unless given) as Markdown."""
     parts = ["## Table 1: parameter estimation, MAE as % of the range (std)", markdown(*table1_rows(records)),
              "", "## Table 2: future prediction, MSE x 1e4 after T+k steps", markdown(*table2_rows(records))]
     extra = [r for r in records if "refine_mse_x1e4_before" in r and _key(r) == ("vgpl", "full")]
@@ -145,8 +154,6 @@ def report_markdown(records: list[dict]) -> str:
         if rig:
             parts += ["", "## Rigidness: probability of the correct label at the trained T", markdown(
                 ["env", "object type", "P(correct)"], [[e, t, f"{v:.3f}"] for e, t, v in rig])]
-    for step in paired_steps(records):
-        header, rows = paired_rows(records, step)
-        if rows:
-            parts += ["", f"## Is VGPL lower at T+{step}? The same test videos, paired", markdown(header, rows)]
+    for step, table in (paired_tables(records) if paired is None else paired).items():
+        parts += ["", f"## Is VGPL lower at T+{step}? The same test videos, paired", markdown(*table)]
     return "\n".join(parts) + "\n"

@@ -22,7 +22,7 @@ from vgpl.eval import figures
 from vgpl.eval.error_breakdown import error_breakdown, rollout_mse_x1e4
 from vgpl.eval.grounding import evaluate_grounding
 from vgpl.eval.preview import write_gif
-from vgpl.eval.tables import PER_VIDEO, csv_text, paired_rows, paired_steps, param_rows, report_markdown, table1_rows, table2_rows
+from vgpl.eval.tables import PER_VIDEO, csv_text, paired_tables, param_rows, report_markdown, table1_rows, table2_rows
 from vgpl.eval.tensorboard_media import add_gif, rollout_video
 from vgpl.models.dynamics_prior import DynamicsPrior
 from vgpl.models.inference import InferenceModule
@@ -37,14 +37,13 @@ def write_tables(records: list[dict], out: Path, notes: str = "") -> str:
     """report.md (the tables, then ``notes``), table1.csv, table2.csv and, where records carry
     per-video errors, paired_t<k>.csv in ``out``; returns the Markdown."""
     out.mkdir(parents=True, exist_ok=True)
-    text = report_markdown(records) + notes
+    paired = paired_tables(records)  # each ablation against VGPL on the same videos
+    text = report_markdown(records, paired) + notes
     (out / "report.md").write_text(text)
     (out / "table1.csv").write_text(csv_text(*table1_rows(records)))
     (out / "table2.csv").write_text(csv_text(*table2_rows(records)))
-    for step in paired_steps(records):  # each ablation against VGPL on the same videos
-        header, rows = paired_rows(records, step)
-        if rows:
-            (out / f"paired_t{step}.csv").write_text(csv_text(header, rows))
+    for step, table in paired.items():
+        (out / f"paired_t{step}.csv").write_text(csv_text(*table))
     return text
 
 
@@ -85,12 +84,12 @@ def evaluate(cfg: DictConfig) -> dict:
     names = list(scene.param_names)
     record[f"breakdown@{last}"] = error_breakdown(result.prediction, result.truth, torch.as_tensor(scene.instance), torch.cat([test.params, result.params], 1),
                                                   last, names + [f"inferred_{n}" for n in names])
-    per_video = {f"future_mse_x1e4@{last}": rollout_mse_x1e4(result.prediction, result.truth, last)}
-    record[PER_VIDEO.format(last)] = {str(int(i)): float(v) for i, v in zip(test.rollout_ids, per_video[f"future_mse_x1e4@{last}"])}  # paired tables
+    errors = rollout_mse_x1e4(result.prediction, result.truth, last)  # [R], each video's, for params.csv and the paired tables
+    record[PER_VIDEO.format(last)] = {str(int(i)): float(v) for i, v in zip(test.rollout_ids, errors)}
     out = Path(cfg.paths.output_dir)
     out.mkdir(parents=True, exist_ok=True)
     (out / "metrics.json").write_text(json.dumps(record, indent=1))
-    (out / "params.csv").write_text(csv_text(*param_rows(names, test.params, result.params, test.rollout_ids, per_video)))
+    (out / "params.csv").write_text(csv_text(*param_rows(names, test.params, result.params, test.rollout_ids, {f"future_mse_x1e4@{last}": errors})))
     notes = (f"\nProposals: the recorded particles + N(0, {noise_std:g}^2) m (eval.proposals=truth), not the visual prior: a diagnostic.\n"
              if truth else "")
     text = write_tables([record], out, notes)
