@@ -95,3 +95,17 @@ def test_the_record_holds_the_signed_offset_of_the_inferred_parameters():
     assert result.metrics["param_bias_pct"] == pytest.approx(float(signed.mean()), rel=1e-5)
     assert result.metrics["param_mae_pct"] == pytest.approx(float(signed.abs().mean()), rel=1e-5)
     assert abs(result.metrics["param_bias_pct"]) <= result.metrics["param_mae_pct"]
+
+
+def test_a_curve_measured_before_is_reported_as_given_and_the_rest_is_unchanged():
+    """The pipeline measures the rigidness curve once for the ablations that share a module."""
+    models, _ = _setup()
+    full = evaluate_grounding(*models, _ablation(), **KWARGS)
+    measured = evaluate_grounding(*models, _ablation(params=False), **KWARGS)
+    reused = evaluate_grounding(*models, _ablation(params=False), rigidness_curve=full.rigidness_curve, **KWARGS)
+    assert reused.rigidness_curve == full.rigidness_curve
+    assert measured.rigidness_curve.keys() == full.rigidness_curve.keys() == {"cube"}
+    torch.testing.assert_close(torch.tensor(measured.rigidness_curve["cube"]), torch.tensor(full.rigidness_curve["cube"]))
+    _assert_same_metrics(reused.metrics, measured.metrics)
+    with pytest.raises(ValueError, match=r"has \{'cube': 7\} values per type, expected 8 for each of \['cube'\]"):
+        evaluate_grounding(*models, _ablation(), rigidness_curve={"cube": full.rigidness_curve["cube"][:7]}, **KWARGS)

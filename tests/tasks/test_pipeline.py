@@ -191,3 +191,23 @@ def test_hydra_multirun_of_the_four_ablations_reports_one_table(tiny):
         if record["method"] == "vgpl":
             assert swept[record["ablation"]]["param_mae_pct"] == record["param_mae_pct"]
             assert swept[record["ablation"]]["future_mse_x1e4@10"] == record["future_mse_x1e4@10"]
+            # each sweep job measured its own curve, the pipeline measured full's once and reused it
+            curves = swept[record["ablation"]]["rigidness_curve"], record["rigidness_curve"]
+            assert curves[0].keys() == curves[1].keys()
+            for name in curves[1]:
+                assert curves[0][name] == pytest.approx(curves[1][name], rel=1e-6)
+
+
+def test_the_ablations_that_infer_rigidness_share_one_measured_curve(tiny, tmp_path):
+    tmp, result = tiny
+    vgpl = {r["ablation"]: r for r in result["records"] if r["method"] == "vgpl"}
+    assert vgpl["full"]["rigidness_curve_from"] is None  # measured
+    for name in ("no_refinement", "no_params"):
+        assert vgpl[name]["rigidness_curve_from"] == str(tmp / "run/evaluate/full/metrics.json")
+        assert vgpl[name]["rigidness_curve"] == vgpl["full"]["rigidness_curve"]
+    assert vgpl["no_rigidness"]["rigidness_curve"] == {} and "rigidness_curve_from" not in vgpl["no_rigidness"]
+    full = tmp / "run/evaluate/full/metrics.json"
+    with pytest.raises(ValueError, match=rf"eval.rigidness_curve_from={full}: its curve was measured with curve_rollouts=None, this evaluation has 3"):
+        evaluate(config(tmp, "task=evaluate", "ablation=no_params", f"eval.rigidness_curve_from={full}", "eval.curve_rollouts=3",
+                        f"paths.output_dir={tmp_path}/bad"))
+    assert not (tmp_path / "bad").exists()  # refused before anything is written

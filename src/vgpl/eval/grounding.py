@@ -40,7 +40,8 @@ def infer_in_chunks(inference, proposals, logits, kinematic, chunk: int, **flags
 @torch.no_grad()
 def evaluate_grounding(dynamics, visual, inference, scene, test: Rollouts, ablation, observed: int = 10, n_steps: int = 20,
                        max_observed: int = 20, start_frame: int = 0, seed: int = 0, chunk: int = 8,
-                       curve_rollouts: int | None = None, truth_noise_std: float = 0.0) -> GroundingResult:
+                       curve_rollouts: int | None = None, truth_noise_std: float = 0.0,
+                       rigidness_curve: dict | None = None) -> GroundingResult:
     """Infer from ``observed`` frames of each test video (from ``start_frame``), roll ``n_steps`` on.
     The inference module runs on ``chunk`` videos at a time (bounded memory; same numbers).
     ``visual=None`` replaces the visual prior by the recorded particles plus ``truth_noise_std``
@@ -49,6 +50,9 @@ def evaluate_grounding(dynamics, visual, inference, scene, test: Rollouts, ablat
     ``ablation`` has booleans rigidness, refinement, params. The rigidness curve is measured for
     T = 1 .. ``max_observed`` when the ablation infers rigidness, on the first ``curve_rollouts``
     test videos (None: all); the probability at T = ``observed`` is reported on all of them.
+    ``rigidness_curve`` (type -> [T_max]) is a curve already measured for this inference module on
+    these proposals (the three ablations that infer rigidness share it): it is reported instead of
+    measured again.
     """
     for m in (dynamics, visual, inference):
         if m is not None:
@@ -104,17 +108,30 @@ def evaluate_grounding(dynamics, visual, inference, scene, test: Rollouts, ablat
     if ablation.rigidness:
         types = scene.instance_types
         at_observed = correct_rigidness_prob(out["rigidness"], test.rigid)  # [R, M]
-        curve_videos = slice(0, curve_rollouts)
-        probs = []
-        for t in range(1, t_max + 1):
-            # all 100 videos at T = 20 at once made 17M proposal edges, 10 GB per activation, and
-            # ran memory-bound for over half an hour on 2 cores
-            p, lg = proposals[curve_videos, :t], logits[curve_videos, :t]
-            q = torch.cat([inference.rigidness(p[i : i + chunk], lg[i : i + chunk], kinematic) for i in range(0, len(p), chunk)])
-            probs.append(correct_rigidness_prob(q, test.rigid))  # [R', M]
-        probs = torch.stack(probs, -1)  # [R', M, T]
         for name in dict.fromkeys(types):
-            idx = [m for m, n in enumerate(types) if n == name]
-            curve[name] = probs[:, idx].mean((0, 1)).tolist()
-            metrics[f"rigidness_prob@{observed}/{name}"] = float(at_observed[:, idx].mean())
+            metrics[f"rigidness_prob@{observed}/{name}"] = float(at_observed[:, [m for m, n in enumerate(types) if n == name]].mean())
+        if rigidness_curve is None:
+            curve = rigidness_against_length(inference, proposals[:curve_rollouts], logits[:curve_rollouts], kinematic, test.rigid, types, chunk)
+        else:
+            curve = {name: list(values) for name, values in rigidness_curve.items()}
+            if set(curve) != set(types) or any(len(v) != t_max for v in curve.values()):
+                lengths = {k: len(v) for k, v in curve.items()}
+                raise ValueError(f"the rigidness curve given has {lengths} values per type, expected {t_max} for each of {sorted(set(types))}")
     return GroundingResult(metrics, curve, truth, pred, out["params"])
+
+
+@torch.no_grad()
+def rigidness_against_length(inference, proposals: torch.Tensor, logits: torch.Tensor, kinematic: torch.Tensor, rigid: torch.Tensor,
+                             types, chunk: int = 8) -> dict:
+    """The mean probability of the correct rigidness label per object type (``types`` names each
+    instance) when the inference module sees the first T = 1 .. T_max frames: type -> [T_max].
+    proposals [R, T_max, N, 3], logits [R, T_max, N, M], rigid [M] (bool)."""
+    probs = []
+    for t in range(1, proposals.shape[1] + 1):
+        # all 100 videos at T = 20 at once made 17M proposal edges, 10 GB per activation, and
+        # ran memory-bound for over half an hour on 2 cores
+        p, lg = proposals[:, :t], logits[:, :t]
+        q = torch.cat([inference.rigidness(p[i : i + chunk], lg[i : i + chunk], kinematic) for i in range(0, len(p), chunk)])
+        probs.append(correct_rigidness_prob(q, rigid))  # [R, M]
+    probs = torch.stack(probs, -1)  # [R, M, T_max]
+    return {name: probs[:, [m for m, n in enumerate(types) if n == name]].mean((0, 1)).tolist() for name in dict.fromkeys(types)}

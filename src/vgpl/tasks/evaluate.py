@@ -7,6 +7,7 @@ task=report gathers many of them."""
 
 from __future__ import annotations
 
+import hashlib
 import json
 import logging
 from pathlib import Path
@@ -74,12 +75,18 @@ def evaluate(cfg: DictConfig) -> dict:
     if test.positions.shape[2] != n:
         raise ValueError(f"{cfg.data.root}/{env}/test: {test.positions.shape[2]} particles, the checkpoints expect {n}")
     observed = cfg.model.inference.observed if cfg.eval.get("observed") is None else cfg.eval.observed
+    measured_on = curve_fingerprint(cfg, paths, source, noise_std, int(test.positions.shape[0]), observed) if cfg.ablation.rigidness else None
+    reused = cfg.eval.get("rigidness_curve_from") if cfg.ablation.rigidness else None
     result = evaluate_grounding(dynamics, visual, inference, scene, test, cfg.ablation, observed, cfg.eval.n_steps,
                                 cfg.eval.get("max_observed", 20), cfg.env.get("start_frame", 0), cfg.seed,
-                                curve_rollouts=cfg.eval.get("curve_rollouts"), truth_noise_std=noise_std)
+                                curve_rollouts=cfg.eval.get("curve_rollouts"), truth_noise_std=noise_std,
+                                rigidness_curve=None if reused is None else reused_rigidness_curve(reused, measured_on))
     record = {"env": env, "method": "vgpl", "ablation": cfg.ablation.name, "n_test": int(test.positions.shape[0]),
               "observed": observed, "proposals": source, "proposals_noise_std": noise_std,
               "checkpoints": {k: str(v) for k, v in paths.items() if v is not None}, **result.metrics, "rigidness_curve": result.rigidness_curve}
+    if result.rigidness_curve:
+        record["rigidness_curve_measured_on"] = measured_on
+        record["rigidness_curve_from"] = reused  # None: measured by this evaluation
     last = cfg.eval.n_steps  # a long-horizon miss traced to videos and to what was inferred for them
     names = list(scene.param_names)
     record[f"breakdown@{last}"] = error_breakdown(result.prediction, result.truth, torch.as_tensor(scene.instance), torch.cat([test.params, result.params], 1),
@@ -96,6 +103,34 @@ def evaluate(cfg: DictConfig) -> dict:
     _figures_and_tensorboard(cfg, scene, test, result, observed, out)
     log.info("evaluation of %s (%s) on %s:\n%s", record["method"], record["ablation"], env, text)
     return record
+
+
+def curve_fingerprint(cfg: DictConfig, paths: dict, source: str, noise_std: float, n_test: int, observed: int) -> dict:
+    """What the rigidness curve depends on: the visual and inference checkpoints' contents (sha256),
+    the proposals, the test videos, the curve's videos and lengths, and the seed where it draws the
+    proposals' noise."""
+    digests = {k: hashlib.sha256(Path(v).read_bytes()).hexdigest() for k, v in paths.items() if k != "dynamics" and v is not None}
+    return {"env": cfg.env.name, "data_root": str(cfg.data.root), "n_test": n_test, "start_frame": int(cfg.env.get("start_frame", 0)),
+            "observed": observed, "max_observed": cfg.eval.get("max_observed", 20), "curve_rollouts": cfg.eval.get("curve_rollouts"),
+            "proposals": source, "proposals_noise_std": noise_std, "sha256": digests,
+            "seed": cfg.seed if source == "truth" and noise_std > 0 else None}  # the seed draws only the noise of truth proposals
+
+
+def reused_rigidness_curve(path: str | Path, measured_on: dict) -> dict:
+    """The rigidness curve of an earlier evaluation (its metrics.json, ``eval.rigidness_curve_from``)
+    of the same inference checkpoint on the same proposals: ablations that infer rigidness share
+    it, so the pipeline measures it once. Raises naming the file and the first thing that differs."""
+    path = Path(path)
+    if not path.is_file():
+        raise ValueError(f"eval.rigidness_curve_from={path}: no such file; expected the metrics.json of an evaluation that measured the curve")
+    record = json.loads(path.read_text())
+    then = record.get("rigidness_curve_measured_on")
+    if not record.get("rigidness_curve") or then is None:
+        raise ValueError(f"eval.rigidness_curve_from={path}: holds no rigidness curve with what it was measured on")
+    for key, now in measured_on.items():
+        if then.get(key) != now:
+            raise ValueError(f"eval.rigidness_curve_from={path}: its curve was measured with {key}={then.get(key)!r}, this evaluation has {now!r}")
+    return record["rigidness_curve"]
 
 
 def _figures_and_tensorboard(cfg, scene, test, result, observed: int, out: Path) -> None:

@@ -2,7 +2,9 @@
 
 generate -> train_dynamics -> identifiability (can the prior's rollout loss find P? warn or stop)
 -> train_visual -> export_proposals -> train_inference (full and
-no_rigidness) -> [train_baseline] -> evaluate (every ablation [and the baseline]) -> report.
+no_rigidness) -> [train_baseline] -> evaluate (every ablation [and the baseline]; the rigidness
+curve is measured by the first ablation that infers rigidness and reused by the others, which
+share its module) -> report.
 Each step writes into ``<run dir>/<step>/`` (and ``pipeline.json``: each step's seconds, each
 training's steps run); checkpoints go to the stable ``paths.ckpt_dir``,
 so ``ckpt_path=last`` resumes a killed pipeline (finished shards are skipped, training resumes).
@@ -72,7 +74,13 @@ def pipeline(cfg: DictConfig) -> dict:
         from vgpl.tasks.baseline import train_baseline
 
         trained["train_baseline"] = run("train_baseline", train_baseline)
-    records = [run(f"evaluate/{a}", evaluate, ablation=ablation_config(a)) for a in cfg.task.ablations]
+    records, curve_from = [], None
+    for a in cfg.task.ablations:  # the ablations that infer rigidness use one module: its curve is measured once
+        flags = ablation_config(a)
+        shared = {**OmegaConf.to_container(cfg.eval, resolve=True), "rigidness_curve_from": curve_from if flags.rigidness else None}
+        records.append(run(f"evaluate/{a}", evaluate, ablation=flags, eval=shared))
+        if flags.rigidness and curve_from is None:
+            curve_from = str(out / f"evaluate/{a}" / "metrics.json")
     if baseline:
         records.append(run("evaluate/densephysnet", evaluate, model={**OmegaConf.to_container(cfg.model, resolve=True), "name": "densephysnet"}))
     notes = ("" if identifiability.get("skipped") else identifiability_summary(identifiability)) + training_summary(trained, times)
