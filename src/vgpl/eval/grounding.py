@@ -108,8 +108,8 @@ def evaluate_grounding(dynamics, visual, inference, scene, test: Rollouts, ablat
     if ablation.rigidness:
         types = scene.instance_types
         at_observed = correct_rigidness_prob(out["rigidness"], test.rigid)  # [R, M]
-        for name in dict.fromkeys(types):
-            metrics[f"rigidness_prob@{observed}/{name}"] = float(at_observed[:, [m for m, n in enumerate(types) if n == name]].mean())
+        for name, prob in mean_per_type(at_observed, types).items():
+            metrics[f"rigidness_prob@{observed}/{name}"] = float(prob)
         if rigidness_curve is None:
             curve = rigidness_against_length(inference, proposals[:curve_rollouts], logits[:curve_rollouts], kinematic, test.rigid, types, chunk)
         else:
@@ -134,4 +134,10 @@ def rigidness_against_length(inference, proposals: torch.Tensor, logits: torch.T
         q = torch.cat([inference.rigidness(p[i : i + chunk], lg[i : i + chunk], kinematic) for i in range(0, len(p), chunk)])
         probs.append(correct_rigidness_prob(q, rigid))  # [R, M]
     probs = torch.stack(probs, -1)  # [R, M, T_max]
-    return {name: probs[:, [m for m, n in enumerate(types) if n == name]].mean((0, 1)).tolist() for name in dict.fromkeys(types)}
+    return {name: curve.tolist() for name, curve in mean_per_type(probs, types).items()}
+
+
+def mean_per_type(probs: torch.Tensor, types) -> dict:
+    """probs [R, M, ...] averaged over the videos and the instances of each object type
+    (``types`` names each of the M instances): type -> [...], in the order types first appear."""
+    return {name: probs[:, [m for m, n in enumerate(types) if n == name]].mean((0, 1)) for name in dict.fromkeys(types)}
