@@ -109,3 +109,14 @@ def test_a_curve_measured_before_is_reported_as_given_and_the_rest_is_unchanged(
     _assert_same_metrics(reused.metrics, measured.metrics)
     with pytest.raises(ValueError, match=r"has \{'cube': 7\} values per type, expected 8 for each of \['cube'\]"):
         evaluate_grounding(*models, _ablation(), rigidness_curve={"cube": full.rigidness_curve["cube"][:7]}, **KWARGS)
+
+
+def test_tracing_the_error_sources_rolls_the_same_inferred_rollout_and_changes_nothing_else():
+    models, r = _setup()
+    plain = evaluate_grounding(*models, _ablation(), **KWARGS)
+    traced = evaluate_grounding(*models, _ablation(), trace_sources=True, chunk=2, **KWARGS)
+    assert plain.sources == {} and list(traced.sources)[0] == "inferred" and "all true" in traced.sources
+    _assert_same_metrics(traced.metrics, plain.metrics)
+    for k in (1, 5):
+        assert traced.sources["inferred"][f"future_mse_x1e4@{k}"] == pytest.approx(plain.metrics[f"future_mse_x1e4@{k}"], rel=1e-5)
+    assert len(traced.sources["all true"]["per_video@5"]) == r

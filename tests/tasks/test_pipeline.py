@@ -132,6 +132,18 @@ def test_evaluation_with_truth_proposals_reads_no_video_or_visual_prior_and_says
     assert not (tmp_path / "bad").exists()  # refused before anything is written
 
 
+def test_evaluation_can_trace_where_the_future_error_comes_from(tiny, tmp_path):
+    """eval.error_sources=true: the prior rolled again with each inferred input taken from the truth."""
+    tmp, _ = tiny
+    record = evaluate(config(tmp, "task=evaluate", "eval.error_sources=true", f"paths.output_dir={tmp_path}"))
+    sources = record["error_sources"]
+    assert sources["inferred"]["future_mse_x1e4@10"] == pytest.approx(record["future_mse_x1e4@10"], rel=1e-5)  # eval.n_steps=10
+    assert set(sources) >= {"true start", "true parameters", "all true"}
+    rows = (tmp_path / "error_sources.csv").read_text().splitlines()
+    assert rows[0] == "inputs from the truth,T+1,T+5,T+10,T+10 minus inferred [95% CI]" and len(rows) == 1 + len(sources)
+    assert "Where the future error comes from" in (tmp_path / "report.md").read_text()
+
+
 def test_report_gathers_a_folder_of_evaluations(tiny):
     tmp, result = tiny
     out = report(config(tmp, "task=report", f"task.dir={tmp}/run/evaluate", f"paths.output_dir={tmp}/report"))

@@ -9,6 +9,7 @@ import torch
 
 from vgpl.data.proposals import propose_videos, truth_proposals
 from vgpl.data.trajectories import Rollouts
+from vgpl.eval.error_sources import RolloutInputs, error_sources
 from vgpl.eval.metrics import correct_rigidness_prob, midpoint_error_pct, param_signed_error_pct, position_mse_x1e4
 from vgpl.eval.rollout import future_mse, rollout
 
@@ -20,6 +21,7 @@ class GroundingResult:
     truth: torch.Tensor | None = None  # [R, n_steps, N, 3]
     prediction: torch.Tensor | None = None  # [R, n_steps, N, 3]
     params: torch.Tensor | None = None  # [R, P] inferred (physical)
+    sources: dict = field(default_factory=dict)  # error_sources' result, where asked for
 
 
 @torch.no_grad()
@@ -41,7 +43,7 @@ def infer_in_chunks(inference, proposals, logits, kinematic, chunk: int, **flags
 def evaluate_grounding(dynamics, visual, inference, scene, test: Rollouts, ablation, observed: int = 10, n_steps: int = 20,
                        max_observed: int = 20, start_frame: int = 0, seed: int = 0, chunk: int = 8,
                        curve_rollouts: int | None = None, truth_noise_std: float = 0.0,
-                       rigidness_curve: dict | None = None) -> GroundingResult:
+                       rigidness_curve: dict | None = None, trace_sources: bool = False) -> GroundingResult:
     """Infer from ``observed`` frames of each test video (from ``start_frame``), roll ``n_steps`` on.
     The inference module runs on ``chunk`` videos at a time (bounded memory; same numbers).
     ``visual=None`` replaces the visual prior by the recorded particles plus ``truth_noise_std``
@@ -52,7 +54,8 @@ def evaluate_grounding(dynamics, visual, inference, scene, test: Rollouts, ablat
     test videos (None: all); the probability at T = ``observed`` is reported on all of them.
     ``rigidness_curve`` (type -> [T_max]) is a curve already measured for this inference module on
     these proposals (the three ablations that infer rigidness share it): it is reported instead of
-    measured again.
+    measured again. ``trace_sources`` also rolls the prior with each input taken from the truth in
+    turn (``error_sources``: start positions, velocities, G, Q, P), a diagnostic of the future error.
     """
     for m in (dynamics, visual, inference):
         if m is not None:
@@ -103,6 +106,15 @@ def evaluate_grounding(dynamics, visual, inference, scene, test: Rollouts, ablat
     pred = rollout(dynamics, driven, out["grouping"], out["rigidness"], out["params"], planes, kinematic, n_steps)
     truth = test.positions[:, start_frame + observed : frames.stop]
     metrics.update(future_mse(pred, truth))
+    sources = {}
+    if trace_sources:
+        m = int(test.rigid.shape[0])
+        r = truth.shape[0]
+        known = RolloutInputs(test.positions[:, frames.start : start_frame + observed],
+                              torch.nn.functional.one_hot(test.instance.long(), m).to(x).expand(r, -1, -1),
+                              test.rigid.to(x).expand(r, -1), test.params.to(x))
+        inferred = RolloutInputs(x[:, -h:], out["grouping"], out["rigidness"], out["params"])
+        sources = error_sources(dynamics, inferred, known, driven[:, h:], planes, kinematic, truth)
     # rigidness against observation length, per object type
     curve = {}
     if ablation.rigidness:
@@ -117,7 +129,7 @@ def evaluate_grounding(dynamics, visual, inference, scene, test: Rollouts, ablat
             if set(curve) != set(types) or any(len(v) != t_max for v in curve.values()):
                 lengths = {k: len(v) for k, v in curve.items()}
                 raise ValueError(f"the rigidness curve given has {lengths} values per type, expected {t_max} for each of {sorted(set(types))}")
-    return GroundingResult(metrics, curve, truth, pred, out["params"])
+    return GroundingResult(metrics, curve, truth, pred, out["params"], sources)
 
 
 @torch.no_grad()

@@ -1,7 +1,9 @@
 """task=evaluate: the paper's evaluation of one method / ablation on one environment's test
 videos, from checkpoint paths alone. Writes metrics.json (with ``breakdown@<n_steps>``: where the
 last predicted frame's error comes from, binned by the true and by the inferred parameters),
-params.csv (per test video: true and inferred parameters, future MSE at T+n_steps),
+params.csv (per test video: true and inferred parameters, future MSE at T+n_steps), with
+``eval.error_sources=true`` error_sources.csv (the future error with each inferred input replaced
+by the truth in turn),
 table1/table2 (Markdown + CSV), PNG figures and TensorBoard events into the run folder;
 task=report gathers many of them."""
 
@@ -21,9 +23,10 @@ from vgpl.data.proposals import proposal_source
 from vgpl.data.trajectories import load_split
 from vgpl.eval import figures
 from vgpl.eval.error_breakdown import error_breakdown, rollout_mse_x1e4
+from vgpl.eval.error_sources import error_sources_rows
 from vgpl.eval.grounding import evaluate_grounding
 from vgpl.eval.preview import write_gif
-from vgpl.eval.tables import PER_VIDEO, csv_text, paired_tables, param_rows, report_markdown, table1_rows, table2_rows
+from vgpl.eval.tables import PER_VIDEO, csv_text, markdown, paired_tables, param_rows, report_markdown, table1_rows, table2_rows
 from vgpl.eval.tensorboard_media import add_gif, rollout_video
 from vgpl.models.dynamics_prior import DynamicsPrior
 from vgpl.models.inference import InferenceModule
@@ -80,13 +83,16 @@ def evaluate(cfg: DictConfig) -> dict:
     result = evaluate_grounding(dynamics, visual, inference, scene, test, cfg.ablation, observed, cfg.eval.n_steps,
                                 cfg.eval.get("max_observed", 20), cfg.env.get("start_frame", 0), cfg.seed,
                                 curve_rollouts=cfg.eval.get("curve_rollouts"), truth_noise_std=noise_std,
-                                rigidness_curve=None if reused is None else reused_rigidness_curve(reused, measured_on))
+                                rigidness_curve=None if reused is None else reused_rigidness_curve(reused, measured_on),
+                                trace_sources=bool(cfg.eval.get("error_sources", False)))
     record = {"env": env, "method": "vgpl", "ablation": cfg.ablation.name, "n_test": int(test.positions.shape[0]),
               "observed": observed, "proposals": source, "proposals_noise_std": noise_std,
               "checkpoints": {k: str(v) for k, v in paths.items() if v is not None}, **result.metrics, "rigidness_curve": result.rigidness_curve}
     if result.rigidness_curve:
         record["rigidness_curve_measured_on"] = measured_on
         record["rigidness_curve_from"] = reused  # None: measured by this evaluation
+    if result.sources:
+        record["error_sources"] = result.sources
     last = cfg.eval.n_steps  # a long-horizon miss traced to videos and to what was inferred for them
     names = list(scene.param_names)
     record[f"breakdown@{last}"] = error_breakdown(result.prediction, result.truth, torch.as_tensor(scene.instance), torch.cat([test.params, result.params], 1),
@@ -99,6 +105,11 @@ def evaluate(cfg: DictConfig) -> dict:
     (out / "params.csv").write_text(csv_text(*param_rows(names, test.params, result.params, test.rollout_ids, {f"future_mse_x1e4@{last}": errors})))
     notes = (f"\nProposals: the recorded particles + N(0, {noise_std:g}^2) m (eval.proposals=truth), not the visual prior: a diagnostic.\n"
              if truth else "")
+    if result.sources:
+        header, rows = error_sources_rows(result.sources)
+        (out / "error_sources.csv").write_text(csv_text(header, rows))
+        notes += ("\n## Where the future error comes from (eval.error_sources)\n\nThe same prior rolled from the inferred inputs "
+                  "with some taken from the recorded truth; future MSE x 1e4.\n\n" + markdown(header, rows) + "\n")
     text = write_tables([record], out, notes)
     _figures_and_tensorboard(cfg, scene, test, result, observed, out)
     log.info("evaluation of %s (%s) on %s:\n%s", record["method"], record["ablation"], env, text)
