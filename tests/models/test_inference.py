@@ -89,6 +89,28 @@ def test_both_starts_rolled_as_one_batch_give_each_start_alone():
         torch.testing.assert_close(losses[name].detach(), ((alone - target) / dyn.disp_std).abs().mean(), rtol=1e-5, atol=1e-7)
 
 
+def test_the_tail_loss_rolls_from_the_last_refined_frames_where_the_evaluation_starts():
+    """tail_horizon=k: an L1 of k frames rolled from the last h refined frames past the window."""
+    from vgpl.eval.rollout import rollout
+
+    torch.manual_seed(0)
+    dyn, inf = _modules(tail_horizon=2)
+    batch = _batch()
+    losses = inf._losses(batch)
+    with torch.no_grad():
+        out = inf.infer(batch["proposals"], batch["logits"], batch["kinematic"][0])
+    truth, t, h = batch["positions"], batch["proposals"].shape[1], dyn.hparams.history
+    alone = rollout(dyn, torch.cat([out["positions"][:, t - h :], truth[:, t:]], 1), out["grouping"], out["rigidness"], out["params"],
+                    batch["planes"][:, t - h :], batch["kinematic"][0], 2)
+    torch.testing.assert_close(losses["tail"].detach(), ((alone - truth[:, t:]) / dyn.disp_std).abs().mean(), rtol=1e-5, atol=1e-7)
+    torch.testing.assert_close(losses["loss"], losses["rollout"] + losses["tail"] + losses["refine"])
+    refine_grad = torch.autograd.grad(losses["tail"], inf.refine_head.lins[-1].weight)[0]
+    assert refine_grad.abs().sum() > 0  # it trains the refinement
+    assert "tail" not in _modules()[1]._losses(batch)  # off by default (the paper)
+    with pytest.raises(ValueError, match="tail_horizon=3, expected 0 \\(off\\) to horizon=2"):
+        _modules(tail_horizon=3)
+
+
 def test_unknown_trajectory_start_is_refused():
     with pytest.raises(ValueError, match="trajectory_start='proposals'"):
         _modules(trajectory_start="proposals")

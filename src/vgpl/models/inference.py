@@ -7,7 +7,8 @@ positions, as the original code adds). ``trajectory_start="truth"`` rolls the tr
 true first frames instead, so that it trains Q and P and the refinement learns from its direct L1
 alone: from noisy starting frames the trajectory loss is lowest at the most damping parameter
 whatever the scene (measured; README, Design). ``"both"`` rolls from each, P learning from the
-true start only and dX through the refined one. Nothing supervises Q or P directly, unless
+true start only and dX through the refined one. ``tail_horizon`` k > 0 adds an L1 of k frames
+rolled from the last ``history`` refined frames, where the evaluation starts (not the paper). Nothing supervises Q or P directly, unless
 ``param_weight`` > 0 adds an L1 on P (not the paper: a shortcut for presets of a few CPU
 minutes, whose dynamics prior is too weak to ground P through; README).
 """
@@ -88,8 +89,11 @@ class InferenceModule(NormalisationBuffers, L.LightningModule):
         param_weight: float = 0.0,
         trajectory_start: str = "refined",
         param_lr: float | None = None,
+        tail_horizon: int = 0,
     ) -> None:
         super().__init__()
+        if not 0 <= tail_horizon <= horizon:
+            raise ValueError(f"InferenceModule: tail_horizon={tail_horizon}, expected 0 (off) to horizon={horizon} (the future frames a window holds)")
         if trajectory_start not in ("refined", "truth", "both"):
             raise ValueError(f"InferenceModule: trajectory_start={trajectory_start!r}, expected 'refined' (the paper), 'truth' or 'both'")
         if param_lr is not None and not param_lr > 0:
@@ -205,10 +209,17 @@ class InferenceModule(NormalisationBuffers, L.LightningModule):
             error = ((future - targets) / scale).abs()[:, :, movable]
             for i, name in enumerate(runs):  # "both": P learns from the true start only, dX through the refined one
                 losses[name] = error[i * b : (i + 1) * b].mean()
+        # the evaluation rolls from the LAST h refined frames, which the trajectory above only ends
+        # in: tail_horizon > 0 also rolls from them past the window, so their motion is trained too
+        kt = self.hparams.tail_horizon
+        if kt > 0:
+            target = truth[:, t : t + kt]
+            future = rollout(dyn, torch.cat([x[:, t - h :], target], 1), g, q, p, planes[:, t - h : t + kt], kinematic, kt)
+            losses["tail"] = ((future - target) / scale).abs()[:, :, movable].mean()
         losses["refine"] = ((out["positions"] - truth[:, :t]) / scale).abs()[:, :, movable].mean()
         p_error = (out["params_normalised"] - self.normalise_params(batch["params"])).abs()
         losses["loss"] = (losses.get("one_step", 0.0) + losses.get("rollout", 0.0) + losses.get("rollout_from_truth", 0.0)
-                          + self.hparams.refine_weight * losses["refine"])
+                          + losses.get("tail", 0.0) + self.hparams.refine_weight * losses["refine"])
         if self.hparams.param_weight > 0:  # NOT the paper: a supervised shortcut for CPU-minute presets (README)
             losses["loss"] = losses["loss"] + self.hparams.param_weight * p_error.mean()
         losses["param_mae_pct"] = (p_error * 50.0).mean()
