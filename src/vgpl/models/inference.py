@@ -209,8 +209,9 @@ class InferenceModule(NormalisationBuffers, L.LightningModule):
             error = ((future - targets) / scale).abs()[:, :, movable]
             for i, name in enumerate(runs):  # "both": P learns from the true start only, dX through the refined one
                 losses[name] = error[i * b : (i + 1) * b].mean()
-        # the evaluation rolls from the LAST h refined frames, which the trajectory above only ends
-        # in: tail_horizon > 0 also rolls from them past the window, so their motion is trained too
+        # the evaluation rolls from the LAST h refined frames, which the trajectory above never
+        # starts from (only the per-position L1 trains them): tail_horizon > 0 rolls from them past
+        # the window, so their motion is trained as the evaluation uses it
         kt = self.hparams.tail_horizon
         if kt > 0:
             target = truth[:, t : t + kt]
