@@ -13,6 +13,7 @@ from dataclasses import dataclass, replace
 
 import torch
 
+from vgpl.eval.error_breakdown import rollout_mse_x1e4
 from vgpl.eval.paired import paired_bootstrap
 from vgpl.eval.rollout import future_mse, rollout
 
@@ -81,7 +82,7 @@ def error_sources(dynamics, inferred: RolloutInputs, true: RolloutInputs, driven
                     x.rigidness[i : i + chunk], x.params[i : i + chunk], planes[i : i + chunk], kinematic, n_steps)
             for i in range(0, len(truth), chunk)
         ])
-        per_video = ((pred[:, last - 1] - truth[:, last - 1]) ** 2).mean((1, 2)) * 1e4  # [R]
+        per_video = rollout_mse_x1e4(pred, truth, last)  # [R]
         row = future_mse(pred, truth, horizons)
         row[f"per_video@{last}"] = per_video.tolist()
         if reference is None:
