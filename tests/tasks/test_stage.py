@@ -3,6 +3,7 @@ trainer.max_time cut short (their numbers depend on the machine's speed)."""
 
 from __future__ import annotations
 
+import shutil
 import time
 
 import lightning as L
@@ -13,7 +14,7 @@ from torch.utils.data import DataLoader, TensorDataset
 
 from tests.conftest import REPO
 from vgpl.tasks.pipeline import training_summary
-from vgpl.tasks.stage import snapshots, stopping, trainer_kwargs
+from vgpl.tasks.stage import checkpointing, snapshots, stopping, trainer_kwargs
 
 
 class SlowRegression(L.LightningModule):
@@ -95,6 +96,31 @@ def test_snapshots_keep_a_checkpoint_every_n_steps_named_by_its_step(tmp_path):
         assert torch.load(tmp_path / f"step{n}.ckpt", weights_only=False)["global_step"] == n
     with pytest.raises(ValueError, match="snapshot_every_n_steps=0"):
         snapshots(tmp_path, 0)
+
+
+class ValidatedRegression(SlowRegression):
+    def validation_step(self, batch, batch_idx):
+        x, y = batch
+        self.log("val/loss", torch.nn.functional.mse_loss(self.layer(x), y))
+
+
+def test_a_copied_stage_folder_resumes_into_its_own_last_ckpt_without_versioned_copies(tmp_path):
+    """Sessions 28-29 copied a stage folder and resumed it to train on. Lightning's version counter
+    then wrote last-v1.ckpt and best-v1.ckpt, and last.ckpt stayed at the copy's step, so
+    ``ckpt_path=last`` after a kill would have restarted from there."""
+    data = DataLoader(TensorDataset(torch.randn(64, 2), torch.randn(64, 1)), batch_size=4)  # 16 steps an epoch
+
+    def fit_into(folder, max_steps, ckpt_path=None):
+        trainer = L.Trainer(logger=False, callbacks=[checkpointing(folder, "val/loss")], enable_progress_bar=False,
+                            enable_model_summary=False, max_steps=max_steps, max_epochs=-1, val_check_interval=8)
+        trainer.fit(ValidatedRegression(0.0), data, data, ckpt_path=ckpt_path)
+
+    fit_into(tmp_path / "original", 16)
+    shutil.copytree(tmp_path / "original", tmp_path / "copy")
+    fit_into(tmp_path / "copy", 48, str(tmp_path / "copy" / "last.ckpt"))  # no save after fit, as a kill leaves it
+    assert sorted(p.name for p in (tmp_path / "copy").iterdir()) == ["best.ckpt", "last.ckpt"]
+    assert torch.load(tmp_path / "copy" / "last.ckpt", weights_only=False)["global_step"] > 16  # saved by the resumed run
+    assert torch.load(tmp_path / "original" / "last.ckpt", weights_only=False)["global_step"] == 16
 
 
 @pytest.mark.parametrize("env", ["rigid_fall", "fluid_cube", "mass_rope"])

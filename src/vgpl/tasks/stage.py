@@ -57,7 +57,7 @@ def fit(cfg: DictConfig, stage: str, stage_cfg: DictConfig, model: L.LightningMo
     saved["stage_class"] = f"{type(model).__module__}.{type(model).__name__}"
     OmegaConf.save(OmegaConf.create(saved), folder / "config.yaml")
     kwargs = trainer_kwargs(cfg, stage_cfg)
-    callbacks = [ModelCheckpoint(dirpath=folder, filename="best", monitor=monitor, save_last=True)]
+    callbacks = [checkpointing(folder, monitor)]
     if stage_cfg.get("snapshot_every_n_steps") is not None:
         callbacks.append(snapshots(folder, int(stage_cfg.snapshot_every_n_steps)))
     ema = stage_cfg.get("ema") or {}
@@ -83,6 +83,15 @@ def fit(cfg: DictConfig, stage: str, stage_cfg: DictConfig, model: L.LightningMo
         log.warning("%s: trainer.max_time=%s stopped training after %d of %d steps; its results depend on this machine's speed",
                     stage, kwargs.get("max_time"), ended["steps"], ended["max_steps"])
     return trainer, folder / "last.ckpt"
+
+
+def checkpointing(folder: str | Path, monitor: str) -> ModelCheckpoint:
+    """Keeps ``<folder>/best.ckpt`` (lowest ``monitor``) and ``<folder>/last.ckpt``, overwritten in
+    place. Lightning would otherwise write ``last-v1.ckpt`` and ``best-v1.ckpt`` when a run resumes
+    from a checkpoint made in another folder (a copy, to train on) and leave last.ckpt stale, so a
+    second kill would lose what the resumed run had saved (sessions 28-29's copies). After such a
+    copy Lightning does not carry the best score over, so best.ckpt is the resumed run's best."""
+    return ModelCheckpoint(dirpath=folder, filename="best", monitor=monitor, save_last=True, enable_version_counter=False)
 
 
 def snapshots(folder: str | Path, every_n_steps: int) -> ModelCheckpoint:
