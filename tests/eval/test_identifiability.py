@@ -54,6 +54,7 @@ def test_a_prior_that_depends_on_p_recovers_it_to_within_half_a_grid_step():
     assert out["midpoint_param_mae_pct"].item() == pytest.approx((truth.abs() * 50).mean().item())
     # on-grid scenes exact; -11.2 is 0.3 of a 1.25 step from -12.5: the nearest grid value, -11.25
     assert out["oracle_param_mae_pct"].item() == pytest.approx(abs(-11.25 - -11.2) / 10 * 100 / 5, abs=1e-3)
+    assert out["grid_param_mae_pct"].item() == pytest.approx(out["oracle_param_mae_pct"].item(), abs=1e-4)  # a perfect prior: the grid's own error
     assert out["loss_curve"].shape == (1, 9) and out["grid"].shape == (9,)
 
 
@@ -64,6 +65,8 @@ def test_a_prior_blind_to_p_has_a_flat_loss_and_no_oracle():
     curve = out["loss_curve"][0]
     assert torch.allclose(curve, curve[0].expand_as(curve))
     assert out["oracle_param_mae_pct"].item() > out["midpoint_param_mae_pct"].item()  # ties go to the range's low end
+    # the 5-point grid is -15, -12.5, -10, -7.5, -5: -14 and -6 are 1 from its nearest values, a tenth of the range
+    assert out["grid_param_mae_pct"].item() == pytest.approx(10.0, abs=1e-4)
 
 
 def test_grid_of_one_value_is_refused():

@@ -299,7 +299,7 @@ def test_ddp_on_two_cpu_processes_matches_single_process_training(tmp_path):
 def test_identifiability_gate_writes_its_sweep_and_warns_or_stops(trained, caplog):
     import json
 
-    from vgpl.tasks.identifiability import IdentifiabilityError, check_identifiability
+    from vgpl.tasks.identifiability import IdentifiabilityError, check_identifiability, identifiability_summary
 
     tmp, result = trained
     gate = ["task=pipeline", "task.identifiability.grid=5", "task.identifiability.max_rollouts=3"]
@@ -307,6 +307,8 @@ def test_identifiability_gate_writes_its_sweep_and_warns_or_stops(trained, caplo
     written = json.loads((tmp / "run/identifiability.json").read_text())
     assert passed["identified"] and written["identified"] and written["checkpoint"] == result["checkpoint"]
     assert len(written["rollout_l1_over_grid/gravity"]) == 5 and 0 <= written["oracle_param_mae_pct/gravity"] <= 100
+    assert 0 <= written["grid_param_mae_pct/gravity"] <= written["oracle_param_mae_pct/gravity"]  # the argmin is a grid value
+    assert f"(a perfect prior on this 5-point grid: {written['grid_param_mae_pct/gravity']:.1f}%" in identifiability_summary(written)
     # the same numbers as task=evaluate_dynamics over the same videos and grid
     again = evaluate_dynamics(config(tmp, "task=evaluate_dynamics", f"ckpt_path={result['checkpoint']}", "task.param_grid=5", "eval.max_rollouts=3"))
     assert again["oracle_param_mae_pct/gravity"] == written["oracle_param_mae_pct/gravity"]
