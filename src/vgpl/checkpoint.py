@@ -43,6 +43,19 @@ def load_stage(path: str | Path, cls, env: str | None = None, n_particles: int |
     return model.eval(), cfg
 
 
+def init_weights(model, path: str | Path, option: str, env: str, n_particles: int | None = None) -> None:
+    """Start ``model`` from the weights (and buffers: normalisation statistics) of the checkpoint
+    ``path`` of the same class, keeping ``model``'s own hyperparameters (e.g. its learning rate):
+    a fine-tune with a fresh optimiser and timer, unlike ``ckpt_path`` which resumes a run.
+    ``option`` (e.g. ``model.inference.init_from``) names the config key in the errors."""
+    source, _ = load_stage(path, type(model), env=env, n_particles=n_particles)
+    try:
+        model.load_state_dict(source.state_dict())
+    except RuntimeError as err:
+        net = option.rsplit(".", 1)[0] + ".net"
+        raise CheckpointError(f"{path}: {option} has other layer shapes than {net} ({str(err).splitlines()[0]})") from None
+
+
 def scene_of(cfg: DictConfig):
     """The Scene a (training) config describes."""
     return hydra.utils.instantiate(cfg.env.scene)

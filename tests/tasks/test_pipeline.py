@@ -18,6 +18,7 @@ from vgpl.data.trajectories import load_split
 from vgpl.eval.tables import PER_VIDEO
 from vgpl.tasks.evaluate import evaluate, report
 from vgpl.tasks.pipeline import pipeline
+from vgpl.tasks.train_inference import train_inference
 
 TINY = [
     "env=rigid_fall", "env.scene.n_steps=40", "data.n_rollouts=48", "data.train_fraction=0.5",
@@ -163,6 +164,24 @@ def test_checkpoint_of_another_env_or_particle_count_is_refused(tiny, tmp_path):
         evaluate(config(tmp, "task=evaluate", "+env.scene.n_cubes=2", f"paths.output_dir={tmp_path}"))
     with pytest.raises(CheckpointError, match="nope.ckpt: no such checkpoint"):
         evaluate(config(tmp, "task=evaluate", f"ckpt.inference={tmp_path}/nope.ckpt", f"paths.output_dir={tmp_path}"))
+
+
+def test_inference_init_from_starts_a_fine_tune_from_the_checkpoints_weights(tiny, tmp_path):
+    """``model.inference.init_from`` (a fine-tune at another lr): lr 0 keeps the source's weights exactly."""
+    import torch
+
+    tmp, _ = tiny
+    stages = tmp / "checkpoints/quick/rigid_fall"
+    tuned = train_inference(config(tmp, "task=train_inference", f"model.inference.init_from={stages}/inference/last.ckpt", "model.inference.net.lr=0",
+                                   f"ckpt.dynamics={stages}/dynamics/last.ckpt", f"paths.ckpt_dir={tmp_path}/tuned", "model.inference.trainer.max_steps=2",
+                                   f"paths.output_dir={tmp_path}/run"))
+    source = torch.load(stages / "inference/last.ckpt", weights_only=False)["state_dict"]
+    after = torch.load(tuned["checkpoint"], weights_only=False)["state_dict"]
+    assert tuned["steps"] == 2 and source.keys() == after.keys()
+    assert all(torch.equal(source[k], after[k]) for k in source)
+    with pytest.raises(CheckpointError, match="model.inference.init_from has other layer shapes than model.inference.net"):
+        train_inference(config(tmp, "task=train_inference", f"model.inference.init_from={stages}/inference/last.ckpt", "model.inference.net.width=16",
+                               f"ckpt.dynamics={stages}/dynamics/last.ckpt", f"paths.ckpt_dir={tmp_path}/bad", f"paths.output_dir={tmp_path}/run"))
 
 
 def test_quickstart_notebook_grounds_a_new_video(tiny):

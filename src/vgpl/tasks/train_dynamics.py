@@ -11,7 +11,7 @@ import hydra
 import torch
 from omegaconf import DictConfig
 
-from vgpl.checkpoint import CheckpointError, load_stage, scene_of
+from vgpl.checkpoint import init_weights, load_stage, scene_of
 from vgpl.data.schema import DatasetError
 from vgpl.data.trajectories import Rollouts, TrajectoryDataModule, ground_truth_grouping, load_split
 from vgpl.eval.error_breakdown import error_breakdown
@@ -54,18 +54,6 @@ def evaluate_rollouts(
     return future_mse(pred, truth) | {f"breakdown@{n_steps}": breakdown}, pred, truth
 
 
-def init_weights(model: DynamicsPrior, path: str | Path, scene: Scene) -> None:
-    """Start ``model`` from the weights (and normalisation statistics) of the DynamicsPrior
-    checkpoint ``path``, keeping ``model``'s own hyperparameters (e.g. ``rollout_steps``): a
-    fine-tune with a fresh optimiser and timer, unlike ``ckpt_path`` which resumes a run."""
-    source, _ = load_stage(path, DynamicsPrior, env=scene.name, n_particles=scene.n_particles)
-    try:
-        model.load_state_dict(source.state_dict())
-    except RuntimeError as err:
-        raise CheckpointError(f"{path}: model.dynamics.init_from has other layer shapes than model.dynamics.net ({str(err).splitlines()[0]})") from None
-    log.info("dynamics prior initialised from %s", path)
-
-
 def train_dynamics(cfg: DictConfig) -> dict:
     """Train the DynamicsPrior into ``<ckpt_dir>/dynamics/`` and evaluate its test rollouts."""
     setup_run(cfg)
@@ -82,7 +70,8 @@ def train_dynamics(cfg: DictConfig) -> dict:
     )
     model.set_stats(dm.stats)
     if spec.get("init_from"):
-        init_weights(model, spec.init_from, scene)
+        init_weights(model, spec.init_from, "model.dynamics.init_from", scene.name, scene.n_particles)
+        log.info("dynamics prior initialised from %s", spec.init_from)
     trainer, last = fit(cfg, "dynamics", spec, model, dm)
     if not trainer.is_global_zero:  # under DDP the other ranks stop here; rank 0 evaluates and writes
         return {"env": scene.name, "checkpoint": str(last)}

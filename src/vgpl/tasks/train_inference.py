@@ -11,7 +11,7 @@ from pathlib import Path
 import hydra
 from omegaconf import DictConfig
 
-from vgpl.checkpoint import load_stage, scene_of
+from vgpl.checkpoint import init_weights, load_stage, scene_of
 from vgpl.data.grounding import GroundingDataModule
 from vgpl.models.dynamics_prior import DynamicsPrior
 from vgpl.models.inference import InferenceModule
@@ -50,6 +50,9 @@ def train_inference(cfg: DictConfig) -> dict:
     )
     model.set_stats(dynamics)  # the same units as the prior it is trained through
     model.attach_dynamics(dynamics)
+    if spec.get("init_from"):
+        init_weights(model, spec.init_from, "model.inference.init_from", scene.name, scene.n_particles)
+        log.info("inference module initialised from %s", spec.init_from)
     stage = inference_stage(cfg.ablation)
     trainer, last = fit(cfg, stage, spec, model, dm)
     if not trainer.is_global_zero:  # under DDP rank 0 alone evaluates and writes
