@@ -6,10 +6,13 @@ Every training task writes ``<ckpt_dir>/<stage>/{last,best}.ckpt`` and the resol
 
 from __future__ import annotations
 
+import logging
 from pathlib import Path
 
 import hydra
 from omegaconf import DictConfig, OmegaConf
+
+log = logging.getLogger(__name__)
 
 
 class CheckpointError(ValueError):
@@ -54,6 +57,7 @@ def init_weights(model, path: str | Path, option: str, env: str, n_particles: in
     except RuntimeError as err:
         net = option.rsplit(".", 1)[0] + ".net"
         raise CheckpointError(f"{path}: {option} has other layer shapes than {net} ({str(err).splitlines()[0]})") from None
+    log.info("%s initialised from %s", type(model).__name__, path)
 
 
 def scene_of(cfg: DictConfig):

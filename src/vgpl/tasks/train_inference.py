@@ -52,7 +52,6 @@ def train_inference(cfg: DictConfig) -> dict:
     model.attach_dynamics(dynamics)
     if spec.get("init_from"):
         init_weights(model, spec.init_from, "model.inference.init_from", scene.name, scene.n_particles)
-        log.info("inference module initialised from %s", spec.init_from)
     stage = inference_stage(cfg.ablation)
     trainer, last = fit(cfg, stage, spec, model, dm)
     if not trainer.is_global_zero:  # under DDP rank 0 alone evaluates and writes
