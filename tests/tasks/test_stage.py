@@ -111,7 +111,7 @@ def test_a_copied_stage_folder_resumes_into_its_own_last_ckpt_without_versioned_
     data = DataLoader(TensorDataset(torch.randn(64, 2), torch.randn(64, 1)), batch_size=4)  # 16 steps an epoch
 
     def fit_into(folder, max_steps, ckpt_path=None):
-        trainer = L.Trainer(logger=False, callbacks=[checkpointing(folder, "val/loss")], enable_progress_bar=False,
+        trainer = L.Trainer(logger=False, callbacks=checkpointing(folder, "val/loss"), enable_progress_bar=False,
                             enable_model_summary=False, max_steps=max_steps, max_epochs=-1, val_check_interval=8)
         trainer.fit(ValidatedRegression(0.0), data, data, ckpt_path=ckpt_path)
 
@@ -121,6 +121,22 @@ def test_a_copied_stage_folder_resumes_into_its_own_last_ckpt_without_versioned_
     assert sorted(p.name for p in (tmp_path / "copy").iterdir()) == ["best.ckpt", "last.ckpt"]
     assert torch.load(tmp_path / "copy" / "last.ckpt", weights_only=False)["global_step"] > 16  # saved by the resumed run
     assert torch.load(tmp_path / "original" / "last.ckpt", weights_only=False)["global_step"] == 16
+
+
+class FrozenRegression(ValidatedRegression):
+    def configure_optimizers(self):
+        return torch.optim.SGD(self.parameters(), lr=0.0)  # the validation loss never improves after the first
+
+
+def test_last_ckpt_follows_every_validation_even_when_the_monitor_stops_improving(tmp_path):
+    """Lightning's save_last writes last.ckpt only beside a new best: a kill after the monitor
+    stopped improving would have resumed from the last improvement."""
+    data = DataLoader(TensorDataset(torch.randn(64, 2), torch.randn(64, 1)), batch_size=4)
+    trainer = L.Trainer(logger=False, callbacks=checkpointing(tmp_path, "val/loss"), enable_progress_bar=False,
+                        enable_model_summary=False, max_steps=40, max_epochs=-1, val_check_interval=8)
+    trainer.fit(FrozenRegression(0.0), data, data)  # no save after fit, as a kill leaves it
+    assert torch.load(tmp_path / "best.ckpt", weights_only=False)["global_step"] == 8
+    assert torch.load(tmp_path / "last.ckpt", weights_only=False)["global_step"] >= 32
 
 
 @pytest.mark.parametrize("env", ["rigid_fall", "fluid_cube", "mass_rope"])

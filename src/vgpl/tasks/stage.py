@@ -57,7 +57,7 @@ def fit(cfg: DictConfig, stage: str, stage_cfg: DictConfig, model: L.LightningMo
     saved["stage_class"] = f"{type(model).__module__}.{type(model).__name__}"
     OmegaConf.save(OmegaConf.create(saved), folder / "config.yaml")
     kwargs = trainer_kwargs(cfg, stage_cfg)
-    callbacks = [checkpointing(folder, monitor)]
+    callbacks = checkpointing(folder, monitor)
     if stage_cfg.get("snapshot_every_n_steps") is not None:
         callbacks.append(snapshots(folder, int(stage_cfg.snapshot_every_n_steps)))
     ema = stage_cfg.get("ema") or {}
@@ -85,13 +85,18 @@ def fit(cfg: DictConfig, stage: str, stage_cfg: DictConfig, model: L.LightningMo
     return trainer, folder / "last.ckpt"
 
 
-def checkpointing(folder: str | Path, monitor: str) -> ModelCheckpoint:
-    """Keeps ``<folder>/best.ckpt`` (lowest ``monitor``) and ``<folder>/last.ckpt``, overwritten in
-    place. Lightning would otherwise write ``last-v1.ckpt`` and ``best-v1.ckpt`` when a run resumes
-    from a checkpoint made in another folder (a copy, to train on) and leave last.ckpt stale, so a
-    second kill would lose what the resumed run had saved (sessions 28-29's copies). After such a
-    copy Lightning does not carry the best score over, so best.ckpt is the resumed run's best."""
-    return ModelCheckpoint(dirpath=folder, filename="best", monitor=monitor, save_last=True, enable_version_counter=False)
+def checkpointing(folder: str | Path, monitor: str) -> list[ModelCheckpoint]:
+    """Keep ``<folder>/best.ckpt`` (lowest ``monitor``) and ``<folder>/last.ckpt`` (the latest
+    validation), both overwritten in place.
+
+    last.ckpt has its own unmonitored callback: Lightning's ``save_last`` writes it only at a
+    validation that also saved a top-k checkpoint, so once ``monitor`` stopped improving a kill
+    sent ``ckpt_path=last`` back to the last improvement. The version counter is off: when a run
+    resumed from a checkpoint made in another folder (a copy, to train on; sessions 28-29) it wrote
+    ``last-v1.ckpt`` and ``best-v1.ckpt`` beside the copy's files. After such a copy Lightning does
+    not carry the best score over, so best.ckpt is the resumed run's best."""
+    return [ModelCheckpoint(dirpath=folder, filename="best", monitor=monitor, enable_version_counter=False),
+            ModelCheckpoint(dirpath=folder, filename="last", enable_version_counter=False)]
 
 
 def snapshots(folder: str | Path, every_n_steps: int) -> ModelCheckpoint:
