@@ -14,7 +14,7 @@ from torch.utils.data import DataLoader, TensorDataset
 
 from tests.conftest import REPO
 from vgpl.tasks.pipeline import training_summary
-from vgpl.tasks.stage import checkpointing, snapshots, stopping, trainer_kwargs
+from vgpl.tasks.stage import LastValidation, checkpointing, snapshots, stopping, trainer_kwargs, validate_final
 
 
 class SlowRegression(L.LightningModule):
@@ -137,6 +137,34 @@ def test_last_ckpt_follows_every_validation_even_when_the_monitor_stops_improvin
     trainer.fit(FrozenRegression(0.0), data, data)  # no save after fit, as a kill leaves it
     assert torch.load(tmp_path / "best.ckpt", weights_only=False)["global_step"] == 8
     assert torch.load(tmp_path / "last.ckpt", weights_only=False)["global_step"] >= 32
+
+
+class CountedRegression(ValidatedRegression):
+    def __init__(self, delay: float) -> None:
+        super().__init__(delay)
+        self.validations = 0
+
+    def on_validation_epoch_end(self) -> None:
+        self.validations += 1
+
+
+@pytest.mark.parametrize("max_steps,validations", [(20, 3), (16, 2)])
+def test_the_reported_validation_describes_the_final_weights(max_steps, validations):
+    """Session 31's inference run stopped at step 1,822 and reported step 1,500's validation. A fit
+    that ends between validations is validated once more; one that ends on a validation is not."""
+    torch.manual_seed(0)
+    x, y = torch.randn(64, 2), torch.randn(64, 1)
+    data = DataLoader(TensorDataset(x, y), batch_size=64)
+    train = DataLoader(TensorDataset(x, y), batch_size=4)  # 16 steps an epoch
+    model = CountedRegression(0.0)
+    trainer = L.Trainer(logger=False, callbacks=[LastValidation()], enable_checkpointing=False, enable_progress_bar=False,
+                        enable_model_summary=False, max_steps=max_steps, max_epochs=-1, val_check_interval=8, num_sanity_val_steps=0)
+    trainer.fit(model, train, data)
+    datamodule = L.LightningDataModule.from_datasets(val_dataset=TensorDataset(x, y), batch_size=64)
+    assert validate_final(trainer, model, datamodule) == max_steps
+    assert model.validations == validations
+    final = torch.nn.functional.mse_loss(model.layer(x), y)
+    assert float(trainer.callback_metrics["val/loss"]) == pytest.approx(float(final), rel=1e-6)
 
 
 @pytest.mark.parametrize("env", ["rigid_fall", "fluid_cube", "mass_rope"])

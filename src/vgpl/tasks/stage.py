@@ -8,7 +8,7 @@ from pathlib import Path
 
 import lightning as L
 import torch
-from lightning.pytorch.callbacks import ModelCheckpoint, Timer
+from lightning.pytorch.callbacks import Callback, ModelCheckpoint, Timer
 from lightning.pytorch.loggers import TensorBoardLogger
 from omegaconf import DictConfig, OmegaConf
 
@@ -57,7 +57,7 @@ def fit(cfg: DictConfig, stage: str, stage_cfg: DictConfig, model: L.LightningMo
     saved["stage_class"] = f"{type(model).__module__}.{type(model).__name__}"
     OmegaConf.save(OmegaConf.create(saved), folder / "config.yaml")
     kwargs = trainer_kwargs(cfg, stage_cfg)
-    callbacks = checkpointing(folder, monitor)
+    callbacks = [*checkpointing(folder, monitor), LastValidation()]
     if stage_cfg.get("snapshot_every_n_steps") is not None:
         callbacks.append(snapshots(folder, int(stage_cfg.snapshot_every_n_steps)))
     ema = stage_cfg.get("ema") or {}
@@ -97,6 +97,32 @@ def checkpointing(folder: str | Path, monitor: str) -> list[ModelCheckpoint]:
     not carry the best score over, so best.ckpt is the resumed run's best."""
     return [ModelCheckpoint(dirpath=folder, filename="best", monitor=monitor, enable_version_counter=False),
             ModelCheckpoint(dirpath=folder, filename="last", enable_version_counter=False)]
+
+
+class LastValidation(Callback):
+    """Records ``step``, the global step of the latest validation (sanity checks excluded; None
+    before the first), so that a task can tell whether ``trainer.callback_metrics`` describe the
+    final weights (``validate_final``)."""
+
+    def __init__(self) -> None:
+        self.step: int | None = None
+
+    def on_validation_end(self, trainer, pl_module) -> None:
+        if not trainer.sanity_checking:
+            self.step = trainer.global_step
+
+
+def validate_final(trainer: L.Trainer, model: L.LightningModule, datamodule: L.LightningDataModule) -> int:
+    """Validate the weights a fit ended with, unless its last validation was at its last step, so
+    that ``trainer.callback_metrics`` describe last.ckpt; returns the step they were measured at.
+
+    Why: validation runs every ``val_check_interval`` steps, so a fit of 1,822 steps validated at
+    1,500 reported step 1,500's numbers beside "steps: 1822" (session 31). The extra validation is
+    logged to TensorBoard at the final step; it saves no checkpoint (fit already wrote last.ckpt)."""
+    seen = next((c for c in trainer.callbacks if isinstance(c, LastValidation)), None)
+    if seen is None or seen.step != trainer.global_step:
+        trainer.validate(model, datamodule=datamodule, verbose=False)
+    return trainer.global_step
 
 
 def snapshots(folder: str | Path, every_n_steps: int) -> ModelCheckpoint:

@@ -15,7 +15,7 @@ from vgpl.checkpoint import init_weights, load_stage, scene_of
 from vgpl.data.grounding import GroundingDataModule
 from vgpl.models.dynamics_prior import DynamicsPrior
 from vgpl.models.inference import InferenceModule
-from vgpl.tasks.stage import fit, setup_run, stage_checkpoint, stopping
+from vgpl.tasks.stage import fit, setup_run, stage_checkpoint, stopping, validate_final
 
 log = logging.getLogger(__name__)
 
@@ -54,9 +54,10 @@ def train_inference(cfg: DictConfig) -> dict:
         init_weights(model, spec.init_from, "model.inference.init_from", scene.name, scene.n_particles)
     stage = inference_stage(cfg.ablation)
     trainer, last = fit(cfg, stage, spec, model, dm)
+    val_step = validate_final(trainer, model, dm)  # every rank: under DDP validation is collective
     if not trainer.is_global_zero:  # under DDP rank 0 alone evaluates and writes
         return {"env": scene.name, "stage": stage, "checkpoint": str(last)}
-    result = {"env": scene.name, "stage": stage, "checkpoint": str(last), **source, **stopping(trainer),
+    result = {"env": scene.name, "stage": stage, "checkpoint": str(last), **source, **stopping(trainer), "val_step": val_step,
               **{k: float(v) for k, v in trainer.callback_metrics.items() if k.startswith("val/")}}
     out = Path(cfg.paths.output_dir)
     out.mkdir(parents=True, exist_ok=True)
