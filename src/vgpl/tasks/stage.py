@@ -112,9 +112,9 @@ class LastValidation(Callback):
             self.step = trainer.global_step
 
 
-def validate_final(trainer: L.Trainer, model: L.LightningModule, datamodule: L.LightningDataModule) -> int:
+def validate_final(trainer: L.Trainer, model: L.LightningModule, datamodule: L.LightningDataModule) -> None:
     """Validate the weights a fit ended with, unless its last validation was at its last step, so
-    that ``trainer.callback_metrics`` describe last.ckpt; returns the step they were measured at.
+    that ``trainer.callback_metrics`` describe last.ckpt (measured at ``trainer.global_step``).
 
     Why: validation runs every ``val_check_interval`` steps, so a fit of 1,822 steps validated at
     1,500 reported step 1,500's numbers beside "steps: 1822" (session 31). The extra validation is
@@ -122,7 +122,6 @@ def validate_final(trainer: L.Trainer, model: L.LightningModule, datamodule: L.L
     seen = next((c for c in trainer.callbacks if isinstance(c, LastValidation)), None)
     if seen is None or seen.step != trainer.global_step:
         trainer.validate(model, datamodule=datamodule, verbose=False)
-    return trainer.global_step
 
 
 def snapshots(folder: str | Path, every_n_steps: int) -> ModelCheckpoint:

@@ -54,10 +54,10 @@ def train_inference(cfg: DictConfig) -> dict:
         init_weights(model, spec.init_from, "model.inference.init_from", scene.name, scene.n_particles)
     stage = inference_stage(cfg.ablation)
     trainer, last = fit(cfg, stage, spec, model, dm)
-    val_step = validate_final(trainer, model, dm)  # every rank: under DDP validation is collective
+    validate_final(trainer, model, dm)  # every rank: under DDP validation is collective; val/* below are last.ckpt's
     if not trainer.is_global_zero:  # under DDP rank 0 alone evaluates and writes
         return {"env": scene.name, "stage": stage, "checkpoint": str(last)}
-    result = {"env": scene.name, "stage": stage, "checkpoint": str(last), **source, **stopping(trainer), "val_step": val_step,
+    result = {"env": scene.name, "stage": stage, "checkpoint": str(last), **source, **stopping(trainer),
               **{k: float(v) for k, v in trainer.callback_metrics.items() if k.startswith("val/")}}
     out = Path(cfg.paths.output_dir)
     out.mkdir(parents=True, exist_ok=True)
