@@ -49,3 +49,12 @@ def test_a_missing_or_empty_folder_in_the_list_is_named(tmp_path):
     with pytest.raises(ValueError, match=r"task.dir=.*/empty: no evaluation metrics.json"):
         _report(tmp_path, f"[{full},{tmp_path}/empty]")
     assert not (tmp_path / "report").exists()  # refused before anything is written
+
+
+def test_two_seeds_of_one_variant_are_pooled_not_overwritten(tmp_path):
+    seed0 = _evaluation(tmp_path / "seed0/full", "rigid_fall", "full", 7.0, 100.0)
+    seed1 = _evaluation(tmp_path / "seed1/full", "rigid_fall", "full", 8.0, 120.0)
+    assert _report(tmp_path, f"[{seed0},{seed1}]")["n_records"] == 2
+    text = (tmp_path / "report/report.md").read_text()
+    assert "| VGPL | 7.5% (runs 7.0, 8.0) |" in text and "| rigid_fall | VGPL | 2 | 7.0, 8.0 | 100.0, 120.0 |" in text
+    assert "| VGPL | 5.500 | 27.500 | 55.000 | 110.000 |" in text  # Table 2: the mean of the two runs

@@ -10,6 +10,7 @@ import re
 import torch
 
 from vgpl.eval.paired import paired_bootstrap
+from vgpl.eval.pooled import pool_runs, variant
 
 ENVS = ("mass_rope", "rigid_fall", "fluid_cube")  # the paper's column order
 HORIZONS = (1, 5, 10, 20)
@@ -26,12 +27,12 @@ PER_VIDEO = "per_video_future_mse_x1e4@{}"  # record key: {rollout id (str): tha
 
 
 def _key(record: dict) -> tuple[str, str]:
-    method = record.get("method", "vgpl")
-    return method, "full" if method == "densephysnet" else record.get("ablation", "full")
+    return variant(record)[:2]
 
 
 def _index(records: list[dict]) -> dict:
-    return {(*_key(r), r["env"]): r for r in records}
+    """(method, ablation, env) -> its record; several runs of one variant are pooled (vgpl.eval.pooled)."""
+    return {variant(r): r for r in pool_runs(records)}
 
 
 def _envs(records: list[dict]) -> list[str]:
@@ -51,7 +52,12 @@ MIDPOINT_ROW = "range midpoint (constant guess)"
 
 
 def _mae_cell(record: dict | None, key: str = "param_mae_pct") -> str:
-    return "" if record is None or key not in record else f"{record[key]:.1f}% ({record[f'{key}_std']:.1f})"
+    """"7.0% (5.4)": the MAE and its std over videos; for pooled runs "7.2% (runs 7.0, 7.4)"."""
+    if record is None or key not in record:
+        return ""
+    if f"{key}_std" in record:
+        return f"{record[key]:.1f}% ({record[f'{key}_std']:.1f})"
+    return f"{record[key]:.1f}% (runs {', '.join(f'{v:.1f}' for v in record['run_values'][key])})"
 
 
 def table1_rows(records: list[dict]) -> tuple[list[str], list[list[str]]]:
@@ -134,6 +140,13 @@ def param_rows(names: list[str], truth, inferred, rollout_ids=None, columns: dic
     return header, rows
 
 
+def runs_rows(pooled: list[dict]) -> tuple[list[str], list[list[str]]]:
+    """Header and rows: each pooled variant's run count, and each run's parameter MAE and T+20."""
+    cell = lambda r, k: ", ".join(f"{v:.1f}" for v in r["run_values"].get(k, []))  # noqa: E731
+    return (["env", "method", "runs", "parameter MAE % per run", "T+20 per run"],
+            [[r["env"], ROWS[_key(r)], str(r["runs"]), cell(r, "param_mae_pct"), cell(r, "future_mse_x1e4@20")] for r in pooled])
+
+
 def csv_text(header: list[str], rows: list[list[str]]) -> str:
     buf = io.StringIO()
     csv.writer(buf).writerows([header, *rows])
@@ -141,8 +154,9 @@ def csv_text(header: list[str], rows: list[list[str]]) -> str:
 
 
 def report_markdown(records: list[dict], paired: dict | None = None) -> str:
-    """Table 1, Table 2, refinement, rigidness and the paired tables (``paired_tables(records)``
-    unless given) as Markdown."""
+    """Table 1, Table 2, refinement, rigidness, the pooled runs and the paired tables
+    (``paired_tables(records)`` unless given) as Markdown."""
+    records = pool_runs(records)
     parts = ["## Table 1: parameter estimation, MAE as % of the range (std)", markdown(*table1_rows(records)),
              "", "## Table 2: future prediction, MSE x 1e4 after T+k steps", markdown(*table2_rows(records))]
     extra = [r for r in records if "refine_mse_x1e4_before" in r and _key(r) == ("vgpl", "full")]
@@ -154,6 +168,10 @@ def report_markdown(records: list[dict], paired: dict | None = None) -> str:
         if rig:
             parts += ["", "## Rigidness: probability of the correct label at the trained T", markdown(
                 ["env", "object type", "P(correct)"], [[e, t, f"{v:.3f}"] for e, t, v in rig])]
+    pooled = [r for r in records if r.get("runs", 1) > 1]
+    if pooled:
+        parts += ["", "## Runs pooled: the tables above give their mean, the paired tables each video's mean over runs",
+                  markdown(*runs_rows(pooled))]
     for step, table in (paired_tables(records) if paired is None else paired).items():
         parts += ["", f"## Is VGPL lower at T+{step}? The same test videos, paired", markdown(*table)]
     return "\n".join(parts) + "\n"
