@@ -12,7 +12,8 @@ def _run(ablation: str, mae: float, std: float, errors: dict[str, float], infere
     return {"env": "rigid_fall", "method": "vgpl", "ablation": ablation, "n_test": len(errors), "observed": 10,
             "param_mae_pct": mae, "param_mae_pct_std": std, "midpoint_param_mae_pct": 25.6, "midpoint_param_mae_pct_std": 12.5,
             "future_mse_x1e4@20": sum(errors.values()) / len(errors), "rigidness_prob@10/cube": 0.9 if ablation == "full" else 0.0,
-            "rigidness_curve": {"cube": [mae]}, "refine_mse_x1e4_before": 9.0, "refine_mse_x1e4_after": mae, "refine_mse_x1e4_before": 9.0, "refine_mse_x1e4_after": mae, PER_VIDEO.format(20): errors, "checkpoints": {"inference": inference}}
+            "rigidness_curve": {"cube": [mae]}, "refine_mse_x1e4_before": 9.0, "refine_mse_x1e4_after": mae,
+            PER_VIDEO.format(20): errors, "checkpoints": {"inference": inference}}
 
 
 def test_two_seeds_of_a_variant_give_their_mean_and_each_run():

@@ -9,9 +9,6 @@ from __future__ import annotations
 
 import numbers
 
-POOLED_KEYS = ("param_mae_pct", "future_mse_x1e4@1", "future_mse_x1e4@5", "future_mse_x1e4@10", "future_mse_x1e4@20")
-
-
 def variant(record: dict) -> tuple[str, str, str]:
     """(method, ablation, env): what one row of a table and one pooled record stand for."""
     method = record.get("method", "vgpl")
@@ -20,9 +17,9 @@ def variant(record: dict) -> tuple[str, str, str]:
 
 def pool_runs(records: list[dict]) -> list[dict]:
     """One record per variant, in the order variants first appear. A variant with one run keeps its
-    record unchanged; several give a record with ``runs`` (how many), ``run_values`` (key -> one
-    value per run, for ``POOLED_KEYS``), ``checkpoints`` (one entry per run), the mean over runs of
-    every number all of them carry, and per-video errors (dicts rollout id -> error) averaged per
+    record unchanged; several give a record with ``runs`` (how many), ``checkpoints`` (one entry
+    per run), the mean over runs of every number all of them carry, each of those numbers' values
+    per run in ``run_values`` (key -> [runs]), and per-video errors (dicts rollout id -> error) averaged per
     video. A spread over videos (``*_std``) is kept only where every run has the same one of the
     same mean (the range midpoint's); a mean of the runs' spreads is no spread of anything.
 
@@ -46,15 +43,15 @@ def _pooled(runs: list[dict]) -> dict:
     if len({r.get("n_test") for r in runs}) > 1:
         raise ValueError(f"{method} {ablation} on {env}: {len(runs)} runs to pool have n_test {[r.get('n_test') for r in runs]}; "
                          f"their checkpoints: {where}")
-    pooled = {"env": env, "method": method, "ablation": ablation, "runs": len(runs), "checkpoints": where,
-              "run_values": {k: [float(r[k]) for r in runs] for k in POOLED_KEYS if k in shared}}
+    pooled = {"env": env, "method": method, "ablation": ablation, "runs": len(runs), "checkpoints": where, "run_values": {}}
     for key in sorted(shared - set(pooled)):
         values = [r[key] for r in runs]
         if key.endswith("_std"):  # kept where it describes the same numbers in every run
             if all(v == values[0] and r.get(key[:-4]) == runs[0].get(key[:-4]) for v, r in zip(values, runs)):
                 pooled[key] = values[0]
         elif all(isinstance(v, numbers.Real) and not isinstance(v, bool) for v in values):
-            pooled[key] = sum(float(v) for v in values) / len(values)
+            pooled["run_values"][key] = [float(v) for v in values]
+            pooled[key] = sum(pooled["run_values"][key]) / len(values)
         elif key.startswith("per_video_"):
             pooled[key] = {i: sum(float(v[i]) for v in values) / len(values) for i in values[0]}
         elif all(v == values[0] for v in values):  # e.g. the observation length, the proposals' source
