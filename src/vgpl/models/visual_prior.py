@@ -8,6 +8,8 @@ units (training-split mean and std, stored with the checkpoint) and returned in 
 
 from __future__ import annotations
 
+import math
+
 import lightning as L
 import torch
 from torch import nn
@@ -34,6 +36,7 @@ class VisualPrior(L.LightningModule):
         lr: float = 1e-4,
         group_weight: float = 1.0,
         downsample: int = 1,
+        lr_anneal_steps: int = 0,
     ) -> None:
         super().__init__()
         self.save_hyperparameters()
@@ -92,3 +95,24 @@ class VisualPrior(L.LightningModule):
 
     def configure_optimizers(self):
         return torch.optim.Adam(self.parameters(), lr=self.hparams.lr)
+
+    def on_train_batch_start(self, batch, batch_idx) -> None:
+        """With ``lr_anneal_steps`` = K > 0 the learning rate is constant until the last K steps of
+        trainer.max_steps, then falls to zero along a half cosine. It is a function of global_step
+        alone, so a fit resumed from a constant-rate checkpoint with a larger max_steps anneals its
+        added steps exactly as a fresh fit would (as DynamicsPrior.on_train_batch_start)."""
+        if self.hparams.lr_anneal_steps <= 0:
+            return
+        lr = self.hparams.lr * annealed_fraction(self.global_step, self.trainer.max_steps, self.hparams.lr_anneal_steps)
+        for group in self.trainer.optimizers[0].param_groups:
+            group["lr"] = lr
+        self.log("train/lr", lr, batch_size=1)
+
+
+def annealed_fraction(step: int, max_steps: int, anneal_steps: int) -> float:
+    """1 before step ``max_steps - anneal_steps``, then 0.5 (1 + cos(pi x progress)), reaching 0
+    at ``max_steps`` (the step after the last one taken)."""
+    if max_steps <= 0:
+        raise ValueError(f"model.visual.net.lr_anneal_steps={anneal_steps} needs a finite trainer max_steps (got {max_steps})")
+    progress = (step - (max_steps - anneal_steps)) / anneal_steps
+    return 1.0 if progress <= 0 else 0.5 * (1.0 + math.cos(math.pi * min(progress, 1.0)))

@@ -1,0 +1,56 @@
+"""VisualPrior's learning-rate anneal (model.visual.net.lr_anneal_steps): constant, then a half
+cosine to zero over the last steps of trainer.max_steps, by global step, so resumed fits match."""
+
+from __future__ import annotations
+
+import lightning as L
+import pytest
+import torch
+from torch.utils.data import DataLoader
+
+from vgpl.models.visual_prior import VisualPrior, annealed_fraction
+
+
+def test_the_anneal_is_flat_then_a_half_cosine_ending_at_zero():
+    assert [annealed_fraction(s, 10, 4) for s in (0, 5, 6)] == [1.0, 1.0, 1.0]
+    assert annealed_fraction(8, 10, 4) == pytest.approx(0.5)
+    assert annealed_fraction(7, 10, 4) == pytest.approx(0.5 * (1 + 2 ** -0.5))
+    assert annealed_fraction(10, 10, 4) == pytest.approx(0.0)
+    with pytest.raises(ValueError, match="lr_anneal_steps=4 needs a finite trainer max_steps"):
+        annealed_fraction(0, -1, 4)
+
+
+class LearningRates(L.Callback):
+    """The rate each optimiser step used."""
+
+    def __init__(self) -> None:
+        self.rates: list[float] = []
+
+    def on_before_optimizer_step(self, trainer, pl_module, optimizer) -> None:
+        self.rates.append(optimizer.param_groups[0]["lr"])
+
+
+def fit(max_steps: int, root, ckpt_path=None) -> list[float]:
+    torch.manual_seed(0)
+    videos = [{"frames": torch.randint(0, 255, (4, 16, 20, 3), dtype=torch.uint8), "positions": torch.randn(4, 3, 3),
+               "instance": torch.tensor([0, 0, 1])} for _ in range(8)]
+    model = VisualPrior(n_particles=3, n_instances=2, channels=[4, 4], pooled=[1, 1], hidden=8, lr=1e-3, lr_anneal_steps=4)
+    rates = LearningRates()
+    trainer = L.Trainer(max_steps=max_steps, logger=False, enable_progress_bar=False, enable_model_summary=False,
+                        default_root_dir=root, callbacks=[rates], enable_checkpointing=False)
+    trainer.fit(model, DataLoader(videos, batch_size=2), ckpt_path=ckpt_path)
+    trainer.save_checkpoint(root / "last.ckpt")
+    return rates.rates
+
+
+def test_a_fit_resumed_past_its_first_max_steps_anneals_as_an_uninterrupted_one(tmp_path):
+    """Steps 0-3 of an 8-step fit run at lr; steps 4-7 at lr x 0.5 (1 + cos(pi k / 4)), k = 0..3.
+    A 5-step fit resumed to 8 steps takes its steps 5-7 at the same rates."""
+    whole = fit(8, tmp_path / "whole")
+    expected = [1e-3] * 5 + [1e-3 * annealed_fraction(s, 8, 4) for s in (5, 6, 7)]
+    assert whole == pytest.approx(expected)
+    assert whole[-1] == pytest.approx(1e-3 * 0.5 * (1 + torch.cos(torch.tensor(torch.pi * 3 / 4)).item()))
+    first = fit(5, tmp_path / "cut")  # anneals from step 1 of its own, shorter schedule
+    assert first[0] == pytest.approx(1e-3) and first[-1] < 1e-3
+    resumed = fit(8, tmp_path / "resumed", ckpt_path=tmp_path / "cut" / "last.ckpt")
+    assert resumed == pytest.approx(whole[5:])
