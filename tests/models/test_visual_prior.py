@@ -8,7 +8,8 @@ import pytest
 import torch
 from torch.utils.data import DataLoader
 
-from vgpl.models.visual_prior import VisualPrior, annealed_fraction
+from vgpl.models.step_learning_rate import annealed_fraction
+from vgpl.models.visual_prior import VisualPrior
 
 
 def test_the_anneal_is_flat_then_a_half_cosine_ending_at_zero():
@@ -50,7 +51,7 @@ def test_a_fit_resumed_past_its_first_max_steps_anneals_as_an_uninterrupted_one(
     expected = [1e-3] * 5 + [1e-3 * annealed_fraction(s, 8, 4) for s in (5, 6, 7)]
     assert whole == pytest.approx(expected)
     assert whole[-1] == pytest.approx(1e-3 * 0.5 * (1 + torch.cos(torch.tensor(torch.pi * 3 / 4)).item()))
-    first = fit(5, tmp_path / "cut")  # anneals from step 1 of its own, shorter schedule
+    first = fit(5, tmp_path / "cut")  # its own, shorter schedule: full rate at steps 0-1, lower from step 2
     assert first[0] == pytest.approx(1e-3) and first[-1] < 1e-3
     resumed = fit(8, tmp_path / "resumed", ckpt_path=tmp_path / "cut" / "last.ckpt")
     assert resumed == pytest.approx(whole[5:])

@@ -28,6 +28,7 @@ from torch_geometric.nn import MLP
 
 from vgpl.eval.rollout import rollout
 from vgpl.graph import edge_features, max_degree, plane_ghosts, radius_graph
+from vgpl.models.step_learning_rate import set_learning_rate
 from vgpl.nn.normalisation import NormalisationBuffers
 from vgpl.nn.propagation import EdgeEncoder, Propagator
 from vgpl.nn.rigid import momentum_projection, quaternion_to_matrix, rigid_displacement, soft_centroids
@@ -243,7 +244,4 @@ class DynamicsPrior(NormalisationBuffers, L.LightningModule):
         never in 42.6k steps of the session-14 GPU runs, twice by step 7 in a small test.)"""
         if self.hparams.lr_decay == 1.0:
             return
-        lr = self.hparams.lr * self.hparams.lr_decay ** (self.global_step // self.trainer.num_training_batches)
-        for group in self.trainer.optimizers[0].param_groups:
-            group["lr"] = lr
-        self.log("train/lr", lr, batch_size=1)
+        set_learning_rate(self, self.hparams.lr * self.hparams.lr_decay ** (self.global_step // self.trainer.num_training_batches))

@@ -8,12 +8,12 @@ units (training-split mean and std, stored with the checkpoint) and returned in 
 
 from __future__ import annotations
 
-import math
-
 import lightning as L
 import torch
 from torch import nn
 from torch.nn import functional as F
+
+from vgpl.models.step_learning_rate import annealed_fraction, set_learning_rate
 
 
 def conv_block(c_in: int, c_out: int) -> nn.Sequential:
@@ -103,16 +103,4 @@ class VisualPrior(L.LightningModule):
         added steps exactly as a fresh fit would (as DynamicsPrior.on_train_batch_start)."""
         if self.hparams.lr_anneal_steps <= 0:
             return
-        lr = self.hparams.lr * annealed_fraction(self.global_step, self.trainer.max_steps, self.hparams.lr_anneal_steps)
-        for group in self.trainer.optimizers[0].param_groups:
-            group["lr"] = lr
-        self.log("train/lr", lr, batch_size=1)
-
-
-def annealed_fraction(step: int, max_steps: int, anneal_steps: int) -> float:
-    """1 before step ``max_steps - anneal_steps``, then 0.5 (1 + cos(pi x progress)), reaching 0
-    at ``max_steps`` (the step after the last one taken)."""
-    if max_steps <= 0:
-        raise ValueError(f"model.visual.net.lr_anneal_steps={anneal_steps} needs a finite trainer max_steps (got {max_steps})")
-    progress = (step - (max_steps - anneal_steps)) / anneal_steps
-    return 1.0 if progress <= 0 else 0.5 * (1.0 + math.cos(math.pi * min(progress, 1.0)))
+        set_learning_rate(self, self.hparams.lr * annealed_fraction(self.global_step, self.trainer.max_steps, self.hparams.lr_anneal_steps))
