@@ -104,8 +104,15 @@ def test_the_tail_loss_rolls_from_the_last_refined_frames_where_the_evaluation_s
                     batch["planes"][:, t - h :], batch["kinematic"][0], 2)
     torch.testing.assert_close(losses["tail"].detach(), ((alone - truth[:, t:]) / dyn.disp_std).abs().mean(), rtol=1e-5, atol=1e-7)
     torch.testing.assert_close(losses["loss"], losses["rollout"] + losses["tail"] + losses["refine"])
-    refine_grad = torch.autograd.grad(losses["tail"], inf.refine_head.lins[-1].weight)[0]
-    assert refine_grad.abs().sum() > 0  # it trains the refinement
+    refine_grad, param_grad = torch.autograd.grad(losses["tail"], [inf.refine_head.lins[-1].weight, inf.param_head.lins[-1].weight])
+    assert refine_grad.abs().sum() > 0 and param_grad.abs().sum() > 0  # it trains the refinement, and P by default
+    detached = InferenceModule(**{**inf.hparams, "tail_detach_params": True})  # the same weights and prior
+    detached.load_state_dict(inf.state_dict())
+    detached.attach_dynamics(dyn)
+    d_losses = detached._losses(batch)
+    torch.testing.assert_close(d_losses["tail"], losses["tail"])  # the same loss ...
+    tail_grads = torch.autograd.grad(d_losses["tail"], [detached.refine_head.lins[-1].weight, detached.param_head.lins[-1].weight], allow_unused=True)
+    assert tail_grads[0].abs().sum() > 0 and (tail_grads[1] is None or not tail_grads[1].any())  # ... with no gradient on P
     assert "tail" not in _modules()[1]._losses(batch)  # off by default (the paper)
     with pytest.raises(ValueError, match="tail_horizon=3, expected 0 \\(off\\) to horizon=2"):
         _modules(tail_horizon=3)

@@ -8,7 +8,9 @@ true first frames instead, so that it trains Q and P and the refinement learns f
 alone: from noisy starting frames the trajectory loss is lowest at the most damping parameter
 whatever the scene (measured; README, Design). ``"both"`` rolls from each, P learning from the
 true start only and dX through the refined one. ``tail_horizon`` k > 0 adds an L1 of k frames
-rolled from the last ``history`` refined frames, where the evaluation starts (not the paper). Nothing supervises Q or P directly, unless
+rolled from the last ``history`` refined frames, where the evaluation starts (not the paper);
+``tail_detach_params`` keeps P out of it, as "both" keeps P out of the refined start.
+Nothing supervises Q or P directly, unless
 ``param_weight`` > 0 adds an L1 on P (not the paper: a shortcut for presets of a few CPU
 minutes, whose dynamics prior is too weak to ground P through; README).
 """
@@ -90,6 +92,7 @@ class InferenceModule(NormalisationBuffers, L.LightningModule):
         trajectory_start: str = "refined",
         param_lr: float | None = None,
         tail_horizon: int = 0,
+        tail_detach_params: bool = False,
     ) -> None:
         super().__init__()
         if not 0 <= tail_horizon <= horizon:
@@ -211,11 +214,13 @@ class InferenceModule(NormalisationBuffers, L.LightningModule):
                 losses[name] = error[i * b : (i + 1) * b].mean()
         # the evaluation rolls from the LAST h refined frames, which the trajectory above never
         # starts from (only the per-position L1 trains them): tail_horizon > 0 rolls from them past
-        # the window, so their motion is trained as the evaluation uses it
+        # the window, so their motion is trained as the evaluation uses it; tail_detach_params keeps P
+        # out of it, as "both" keeps P out of the refined start (from noisy frames P can absorb start errors)
         kt = self.hparams.tail_horizon
         if kt > 0:
             target = truth[:, t : t + kt]
-            future = rollout(dyn, torch.cat([x[:, t - h :], target], 1), g, q, p, planes[:, t - h : t + kt], kinematic, kt)
+            p_tail = p.detach() if self.hparams.tail_detach_params else p
+            future = rollout(dyn, torch.cat([x[:, t - h :], target], 1), g, q, p_tail, planes[:, t - h : t + kt], kinematic, kt)
             losses["tail"] = ((future - target) / scale).abs()[:, :, movable].mean()
         losses["refine"] = ((out["positions"] - truth[:, :t]) / scale).abs()[:, :, movable].mean()
         p_error = (out["params_normalised"] - self.normalise_params(batch["params"])).abs()
