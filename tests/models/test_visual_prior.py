@@ -8,7 +8,7 @@ import pytest
 import torch
 from torch.utils.data import DataLoader
 
-from vgpl.models.step_learning_rate import annealed_fraction
+from vgpl.models.step_learning_rate import annealed_fraction, unfinished_anneal
 from vgpl.models.visual_prior import VisualPrior
 
 
@@ -19,6 +19,18 @@ def test_the_anneal_is_flat_then_a_half_cosine_ending_at_zero():
     assert annealed_fraction(10, 10, 4) == pytest.approx(0.0)
     with pytest.raises(ValueError, match="lr_anneal_steps=4 needs a finite trainer max_steps"):
         annealed_fraction(0, -1, 4)
+
+
+
+def test_a_fit_stopped_before_its_anneal_ended_says_so_and_how_to_finish():
+    """A time cap can stop a fit before max_steps: session 33's first 7,000-step run stopped at
+    5,441 of 7,000 with lr_anneal_steps=2000, and its last.ckpt was not the annealed prior."""
+    mid = unfinished_anneal("visual", 2000, 5441, 7000)
+    assert mid.startswith("visual: stopped at step 5441 of 7000, mid-anneal, at 88% of lr (model.visual.net.lr_anneal_steps=2000)")
+    assert "ckpt_path=last model.visual.trainer.max_time=null" in mid
+    assert "before its learning-rate anneal began" in unfinished_anneal("visual", 2000, 4000, 7000)
+    assert unfinished_anneal("visual", 2000, 7000, 7000) is None  # finished
+    assert unfinished_anneal("visual", 0, 10, 7000) is None  # no anneal (the paper's constant rate)
 
 
 class LearningRates(L.Callback):

@@ -26,3 +26,15 @@ def annealed_fraction(step: int, max_steps: int, anneal_steps: int) -> float:
         raise ValueError(f"model.visual.net.lr_anneal_steps={anneal_steps} needs a finite trainer max_steps (got {max_steps})")
     progress = (step - (max_steps - anneal_steps)) / anneal_steps
     return 1.0 if progress <= 0 else 0.5 * (1.0 + math.cos(math.pi * min(progress, 1.0)))
+
+
+
+def unfinished_anneal(stage: str, anneal_steps: int, steps: int, max_steps: int) -> str | None:
+    """The warning for a fit that stopped (on trainer.max_time) before its anneal reached zero, so
+    that its last.ckpt holds weights from a rate above zero; None when the anneal is off or done."""
+    if anneal_steps <= 0 or steps >= max_steps:
+        return None
+    where = ("before its learning-rate anneal began" if steps <= max_steps - anneal_steps else
+             f"mid-anneal, at {annealed_fraction(steps, max_steps, anneal_steps):.0%} of lr")
+    return (f"{stage}: stopped at step {steps} of {max_steps}, {where} (model.{stage}.net.lr_anneal_steps={anneal_steps}); "
+            f"resume with ckpt_path=last model.{stage}.trainer.max_time=null to finish it")
