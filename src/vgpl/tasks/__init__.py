@@ -20,6 +20,7 @@ TASKS: dict[str, str] = {
     "train_baseline": "vgpl.tasks.baseline:train_baseline",
     "evaluate": "vgpl.tasks.evaluate:evaluate",
     "report": "vgpl.tasks.evaluate:report",
+    "free_fall_gravity": "vgpl.tasks.free_fall:free_fall_gravity",
     "pipeline": "vgpl.tasks.pipeline:pipeline",
 }
 

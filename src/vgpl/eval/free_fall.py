@@ -1,0 +1,47 @@
+"""Gravity read from falling bodies by least squares, with no learned model: how much of it the
+observed frames of a RigidFall video carry, given positions as good as the proposals.
+
+Every RigidFall body starts at rest and falls freely over the first frames, so its height is
+y_t = y_0 + g s_t, with one profile s_t that the engine's integrator fixes for every scene (about
+t dt / 4 + t^2 dt^2 / 2 with two substeps; measured from the truth, not assumed). Knowing s leaves
+one unknown per video, g, and one offset per body: a straight-line fit of the heights against s.
+Without the profile a free parabola per body is needed, and its curvature is far noisier.
+"""
+
+from __future__ import annotations
+
+import torch
+
+UP = 1  # gravity acts along y (vgpl.sim.envs.rigid_fall)
+
+
+def body_heights(positions: torch.Tensor, instance: torch.Tensor) -> torch.Tensor:
+    """positions [V, T, N, 3], instance [N] or [V, N] (body ids 0..M-1) -> heights [V, T, M] of
+    each body's centroid."""
+    onehot = torch.nn.functional.one_hot(instance.long(), int(instance.max()) + 1).to(positions.dtype)
+    if onehot.dim() == 2:
+        onehot = onehot.expand(positions.shape[0], -1, -1)  # [V, N, M]
+    return torch.einsum("vtn,vnm->vtm", positions[..., UP], onehot) / onehot.sum(1)[:, None, :]
+
+
+def free_fall_profile(heights: torch.Tensor, gravity: torch.Tensor, tolerance: float = 1e-4) -> torch.Tensor:
+    """The profile s [T] with y_t = y_0 + g s_t, measured on true heights [V, T, M] and gravity [V].
+
+    Raises ValueError when some body is not in free fall from rest over these frames (it landed, or
+    was thrown): its heights are more than ``tolerance`` metres off the common profile."""
+    drop = (heights - heights[:, :1]) / gravity[:, None, None]  # [V, T, M]
+    profile = drop.mean((0, 2))
+    off = (drop - profile[None, :, None]).abs() * gravity.abs()[:, None, None]
+    if float(off.max()) > tolerance:
+        v, t, m = (int(i) for i in torch.nonzero(off == off.max())[0])
+        raise ValueError(f"not a free fall from rest over the first {heights.shape[1]} frames: video {v}, body {m} is "
+                         f"{float(off.max()) * 1000:.2f} mm off the common profile at frame {t}; observe fewer frames")
+    return profile
+
+
+def fit_gravity(heights: torch.Tensor, profile: torch.Tensor) -> torch.Tensor:
+    """Least-squares g [V] of y[v, t, m] = a[v, m] + g[v] s[t] (one offset per body, a shared g)
+    from heights [V, T, M] and the profile s [T]."""
+    s = profile - profile.mean()
+    y = heights - heights.mean(1, keepdim=True)
+    return torch.einsum("vtm,t->v", y, s) / (heights.shape[2] * (s * s).sum())

@@ -1,0 +1,50 @@
+"""Gravity from a least-squares free-fall fit (vgpl.eval.free_fall)."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+
+from vgpl.eval.free_fall import body_heights, fit_gravity, free_fall_profile
+
+DT = 1 / 60
+
+
+def falls(gravity: torch.Tensor, frames: int = 10, bodies: int = 3) -> torch.Tensor:
+    """Heights [V, T, M] of bodies dropped from rest a quarter frame before frame 0 (as the engine's
+    two substeps give), from heights 0.5, 0.6, ..."""
+    t = torch.arange(frames, dtype=torch.float64) * DT
+    shape = DT / 4 * t + t * t / 2
+    return 0.5 + 0.1 * torch.arange(bodies, dtype=torch.float64)[None, None] + gravity[:, None, None] * shape[None, :, None]
+
+
+def test_the_fit_recovers_gravity_and_averages_out_per_body_offsets():
+    gravity = torch.tensor([-5.0, -9.81, -15.0], dtype=torch.float64)
+    heights = falls(gravity)
+    profile = free_fall_profile(heights, gravity)
+    assert profile[0] == 0 and profile[9] == pytest.approx(DT * 9 * DT / 4 + (9 * DT) ** 2 / 2)
+    torch.testing.assert_close(fit_gravity(heights, profile), gravity)
+    shifted = heights + torch.tensor([0.01, -0.02, 0.03], dtype=torch.float64)  # a constant offset per body: no effect
+    torch.testing.assert_close(fit_gravity(shifted, profile), gravity)
+    # a per-frame error that is not a constant moves it: +1 cm on the last frame of every body
+    bumped = heights.clone()
+    bumped[:, -1] += 0.01
+    s = profile - profile.mean()
+    expected = gravity + 0.01 * s[-1] / (s * s).sum()  # the closed form of the least-squares slope
+    torch.testing.assert_close(fit_gravity(bumped, profile), expected)
+
+
+def test_a_body_that_lands_is_refused_by_video_body_and_frame():
+    gravity = torch.tensor([-9.81, -12.0], dtype=torch.float64)
+    heights = falls(gravity)
+    heights[1, 7:, 2] = heights[1, 6, 2]  # video 1's third body stops at frame 6
+    with pytest.raises(ValueError, match="not a free fall from rest over the first 10 frames: video 1, body 2 is .* mm off .* at frame 9"):
+        free_fall_profile(heights, gravity)
+
+
+def test_body_heights_are_the_centroids_vertical_coordinate():
+    positions = torch.zeros(2, 3, 4, 3)
+    positions[..., 1] = torch.tensor([1.0, 3.0, 10.0, 20.0])  # particles 0-1 are body 0, 2-3 body 1
+    instance = torch.tensor([0, 0, 1, 1])
+    assert torch.equal(body_heights(positions, instance), torch.tensor([2.0, 15.0]).expand(2, 3, 2))
+    assert torch.equal(body_heights(positions, instance.expand(2, 4)), torch.tensor([2.0, 15.0]).expand(2, 3, 2))
