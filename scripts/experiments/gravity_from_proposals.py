@@ -8,8 +8,8 @@ proposals. Also prints the observed frames' position MSE x 1e4 and the cube cent
 
 Superseded by ``task=free_fall_gravity`` (session 34; vgpl.eval.free_fall): every scene starts
 from rest, and a fit that knows it has one unknown a video instead of three a cube. On the same
-proposals it reads gravity about twice as well (5.3% against 12-13% calibrated on the annealed
-visual prior's); this script stays as session 30 ran it.
+proposals it reads gravity about twice as well (calibrated: 5.3% against 11.8% on the annealed
+visual prior's, 6.3% against 13.4% on the 5,000-step one); this script stays as session 30 ran it.
 
 Usage: python scripts/experiments/gravity_from_proposals.py DATA_ROOT [DATA_ROOT ...]
        (each with rigid_fall/{train,test} shards and rigid_fall/proposals/{train,test}.h5)
