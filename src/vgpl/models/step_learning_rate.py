@@ -28,7 +28,6 @@ def annealed_fraction(step: int, max_steps: int, anneal_steps: int) -> float:
     return 1.0 if progress <= 0 else 0.5 * (1.0 + math.cos(math.pi * min(progress, 1.0)))
 
 
-
 def unfinished_anneal(stage: str, anneal_steps: int, steps: int, max_steps: int) -> str | None:
     """The warning for a fit that stopped (on trainer.max_time) before its anneal reached zero, so
     that its last.ckpt holds weights from a rate above zero; None when the anneal is off or done."""
