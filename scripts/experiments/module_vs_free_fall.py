@@ -17,28 +17,21 @@ import torch
 
 from vgpl.checkpoint import load_stage, scene_of
 from vgpl.data.grounding import split_with_proposals
-from vgpl.eval.free_fall import body_heights, fit_gravity, free_fall_profile
+from vgpl.eval.free_fall import FreeFallSplit, calibration
 from vgpl.eval.grounding import infer_in_chunks
 from vgpl.models.inference import InferenceModule
 
 FRAMES = 10
 
 
-def fitted(root: str, split: str) -> tuple[torch.Tensor, torch.Tensor]:
-    """(the free-fall fit's gravity [R], the true gravity [R]) on a split's proposals."""
-    rollouts, proposals = split_with_proposals(root, "rigid_fall", split)
-    gravity = rollouts.params[:, 0].double()
-    profile = free_fall_profile(body_heights(rollouts.positions[:, :FRAMES].double(), rollouts.instance), gravity)
-    return fit_gravity(body_heights(proposals.positions[:, :FRAMES].double(), rollouts.instance), profile), gravity
-
-
 def main(root: str, checkpoints: list[str]) -> None:
-    x, y = fitted(root, "train")
-    a, b = torch.linalg.lstsq(torch.stack([torch.ones_like(x), x], 1), y[:, None]).solution[:, 0]
-    fit, gravity = fitted(root, "test")
-    fit_error = ((a + b * fit).clamp(-15, -5) - gravity) / 10 * 100  # % of the range
-    print(f"{root}: calibrated free-fall fit, gravity MAE {fit_error.abs().mean():.2f}%")
+    train = FreeFallSplit.of(*split_with_proposals(root, "rigid_fall", "train"), FRAMES)
     test, proposals = split_with_proposals(root, "rigid_fall", "test")
+    held_out = FreeFallSplit.of(test, proposals, FRAMES)
+    a, b = calibration(train.fit(), train.gravity)
+    low, high = float(test.param_low[0]), float(test.param_high[0])
+    fit_error = ((a + b * held_out.fit()).clamp(low, high) - held_out.gravity) / (high - low) * 100  # % of the range
+    print(f"{root}: calibrated free-fall fit, gravity MAE {fit_error.abs().mean():.2f}%")
     errors = []
     for ckpt in checkpoints:
         module, cfg = load_stage(ckpt, InferenceModule, env="rigid_fall")

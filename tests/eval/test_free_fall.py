@@ -48,3 +48,26 @@ def test_body_heights_are_the_centroids_vertical_coordinate():
     instance = torch.tensor([0, 0, 1, 1])
     assert torch.equal(body_heights(positions, instance), torch.tensor([2.0, 15.0]).expand(2, 3, 2))
     assert torch.equal(body_heights(positions, instance.expand(2, 4)), torch.tensor([2.0, 15.0]).expand(2, 3, 2))
+
+
+def test_a_split_scales_the_proposals_error_in_heights_as_in_positions_and_calibrates_by_a_line():
+    from types import SimpleNamespace
+
+    from vgpl.eval.free_fall import FreeFallSplit, calibration
+
+    torch.manual_seed(0)
+    gravity = torch.tensor([-6.0, -9.0, -13.0], dtype=torch.float64)
+    instance = torch.tensor([0, 0, 1, 1, 2, 2])
+    heights = falls(gravity)  # [3, 10, 3]: each body's two particles at its height, 5 cm apart in x
+    truth = torch.zeros(3, 10, 6, 3, dtype=torch.float64)
+    truth[..., 1] = heights.repeat_interleave(2, -1)
+    truth[..., 0] = torch.tensor([0.0, 0.05] * 3, dtype=torch.float64)
+    noisy = truth + 0.01 * torch.randn_like(truth)
+    split = FreeFallSplit.of(SimpleNamespace(positions=truth, instance=instance, params=gravity[:, None]),
+                             SimpleNamespace(positions=noisy), 10)
+    assert split.position_mse == pytest.approx(float((noisy - truth).pow(2).mean()))
+    profile = free_fall_profile(heights, gravity)
+    for scale in (1.0, 0.5):
+        torch.testing.assert_close(split.fit(scale), fit_gravity(body_heights(truth + scale * (noisy - truth), instance), profile))
+    torch.testing.assert_close(split.fit(0.0), gravity)
+    assert calibration(2.0 + 0.5 * gravity, gravity) == pytest.approx((-4.0, 2.0))  # gravity = -4 + 2 x fitted

@@ -21,7 +21,6 @@ def test_the_anneal_is_flat_then_a_half_cosine_ending_at_zero():
         annealed_fraction(0, -1, 4)
 
 
-
 def test_a_fit_stopped_before_its_anneal_ended_says_so_and_how_to_finish():
     """A time cap can stop a fit before max_steps: session 33's first 7,000-step run stopped at
     5,441 of 7,000 with lr_anneal_steps=2000, and its last.ckpt was not the annealed prior."""

@@ -10,6 +10,8 @@ Without the profile a free parabola per body is needed, and its curvature is far
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import torch
 
 UP = 1  # gravity acts along y (vgpl.sim.envs.rigid_fall)
@@ -45,3 +47,35 @@ def fit_gravity(heights: torch.Tensor, profile: torch.Tensor) -> torch.Tensor:
     s = profile - profile.mean()
     y = heights - heights.mean(1, keepdim=True)
     return torch.einsum("vtm,t->v", y, s) / (heights.shape[2] * (s * s).sum())
+
+
+@dataclass
+class FreeFallSplit:
+    """A split's bodies over the fitted frames: true heights [V, T, M], the proposals' height error
+    [V, T, M], true gravity [V], the profile [T] and the proposals' position MSE (m^2). Heights are
+    linear in positions, so proposals with their error scaled are truth + scale x error here."""
+
+    truth: torch.Tensor
+    error: torch.Tensor
+    gravity: torch.Tensor
+    profile: torch.Tensor
+    position_mse: float
+
+    @classmethod
+    def of(cls, rollouts, proposals, frames: int) -> "FreeFallSplit":
+        """From a split's Rollouts and its Proposals (vgpl.data.grounding.split_with_proposals),
+        frames 0..frames-1."""
+        truth = rollouts.positions[:, :frames].double()
+        error = proposals.positions[:, :frames].double() - truth
+        heights, gravity = body_heights(truth, rollouts.instance), rollouts.params[:, 0].double()
+        return cls(heights, body_heights(error, rollouts.instance), gravity, free_fall_profile(heights, gravity), float(error.pow(2).mean()))
+
+    def fit(self, scale: float = 1.0) -> torch.Tensor:
+        """fit_gravity [V] of the proposals with their error scaled by ``scale``."""
+        return fit_gravity(self.truth + scale * self.error, self.profile)
+
+
+def calibration(fitted: torch.Tensor, gravity: torch.Tensor) -> tuple[float, float]:
+    """(a, b) of the least-squares line gravity ~ a + b fitted, both [V] (on a training split)."""
+    a, b = torch.linalg.lstsq(torch.stack([torch.ones_like(fitted), fitted], 1), gravity[:, None]).solution[:, 0]
+    return float(a), float(b)

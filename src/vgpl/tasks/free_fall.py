@@ -14,7 +14,7 @@ import torch
 from omegaconf import DictConfig
 
 from vgpl.data.grounding import split_with_proposals
-from vgpl.eval.free_fall import body_heights, fit_gravity, free_fall_profile
+from vgpl.eval.free_fall import FreeFallSplit, calibration
 from vgpl.eval.tables import markdown
 
 log = logging.getLogger(__name__)
@@ -31,33 +31,29 @@ def free_fall_gravity(cfg: DictConfig) -> dict:
         rollouts, proposals = split_with_proposals(cfg.data.root, env, split)
         if not 3 <= frames <= proposals.positions.shape[1]:
             raise ValueError(f"task.frames={frames}: expected 3 to {proposals.positions.shape[1]} (the frames the {split} proposals cover)")
-        truth = rollouts.positions[:, :frames].double()
-        gravity = rollouts.params[:, 0].double()
-        profile = free_fall_profile(body_heights(truth, rollouts.instance), gravity)
-        splits[split] = (truth, proposals.positions[:, :frames].double() - truth, rollouts.instance, gravity, profile)
-    pct = lambda g, truth: (g.clamp(low, high) - truth) / (high - low) * 100  # noqa: E731  (clipped to the range, as P is)
-    gravity = splits["test"][3]
+        splits[split] = FreeFallSplit.of(rollouts, proposals, frames)
+    train, test = splits["train"], splits["test"]
+    pct = lambda g: (g.clamp(low, high) - test.gravity) / (high - low) * 100  # noqa: E731  (clipped to the range, as P is)
     rows = []
     for scale in [float(s) for s in cfg.task.error_scales]:
-        fitted = {k: fit_gravity(body_heights(t + scale * e, inst), prof) for k, (t, e, inst, _, prof) in splits.items()}
-        x, y = fitted["train"], splits["train"][3]
-        a, b = torch.linalg.lstsq(torch.stack([torch.ones_like(x), x], 1), y[:, None]).solution[:, 0]
-        raw, calibrated = pct(fitted["test"], gravity), pct(a + b * fitted["test"], gravity)
-        rows.append({"error_scale": scale, "proposal_mse_x1e4": float((scale * splits["test"][1]).pow(2).mean() * 1e4),
+        a, b = calibration(train.fit(scale), train.gravity)
+        fitted = test.fit(scale)
+        raw, calibrated = pct(fitted), pct(a + b * fitted)
+        rows.append({"error_scale": scale, "proposal_mse_x1e4": scale**2 * test.position_mse * 1e4,
                      "gravity_mae_pct": float(raw.abs().mean()), "gravity_bias_pct": float(raw.mean()),
                      "calibrated_gravity_mae_pct": float(calibrated.abs().mean()), "calibrated_gravity_mae_pct_std": float(calibrated.abs().std()),
-                     "calibration": [float(a), float(b)]})
-    result = {"env": env, "proposals": str(Path(cfg.data.root) / env), "n_train": len(splits["train"][3]), "n_test": len(gravity),
-              "frames": frames, "profile": [float(s) for s in splits["test"][4]],
-              "midpoint_gravity_mae_pct": float(pct(torch.full_like(gravity, (low + high) / 2), gravity).abs().mean()), "fits": rows}
+                     "calibration": [a, b]})
+    result = {"env": env, "proposals": str(Path(cfg.data.root) / env), "n_train": len(train.gravity), "n_test": len(test.gravity),
+              "frames": frames, "profile": [float(s) for s in test.profile],
+              "midpoint_gravity_mae_pct": float(pct(torch.full_like(test.gravity, (low + high) / 2)).abs().mean()), "fits": rows}
     out = Path(cfg.paths.output_dir)
     out.mkdir(parents=True, exist_ok=True)
     (out / "metrics.json").write_text(json.dumps(result, indent=1))
     table = markdown(["proposals' error x", "proposal MSE x 1e4", "gravity MAE %, fit (bias)", "calibrated on train: MAE % (std)"],
                      [[f"{r['error_scale']:g}", f"{r['proposal_mse_x1e4']:.2f}", f"{r['gravity_mae_pct']:.1f} ({r['gravity_bias_pct']:+.1f})",
                        f"{r['calibrated_gravity_mae_pct']:.1f} ({r['calibrated_gravity_mae_pct_std']:.1f})"] for r in rows])
-    text = (f"# Gravity from a free-fall fit to frames 0-{frames - 1}: {len(gravity)} test videos, calibrated on "
-            f"{result['n_train']} training videos\n\n{table}\n\nThe range midpoint scores {result['midpoint_gravity_mae_pct']:.1f}%.\n")
+    text = (f"# Gravity from a free-fall fit to frames 0-{frames - 1}: {len(test.gravity)} test videos, calibrated on "
+            f"{len(train.gravity)} training videos\n\n{table}\n\nThe range midpoint scores {result['midpoint_gravity_mae_pct']:.1f}%.\n")
     (out / "free_fall_gravity.md").write_text(text)
     log.info("%s", text)
     return result
