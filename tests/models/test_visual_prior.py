@@ -42,13 +42,13 @@ class LearningRates(L.Callback):
         self.rates.append(optimizer.param_groups[0]["lr"])
 
 
-def fit(max_steps: int, root, ckpt_path=None) -> list[float]:
+def fit(max_steps: int, root, ckpt_path=None, max_epochs: int = -1) -> list[float]:
     torch.manual_seed(0)
     videos = [{"frames": torch.randint(0, 255, (4, 16, 20, 3), dtype=torch.uint8), "positions": torch.randn(4, 3, 3),
                "instance": torch.tensor([0, 0, 1])} for _ in range(8)]
     model = VisualPrior(n_particles=3, n_instances=2, channels=[4, 4], pooled=[1, 1], hidden=8, lr=1e-3, lr_anneal_steps=4)
     rates = LearningRates()
-    trainer = L.Trainer(max_steps=max_steps, logger=False, enable_progress_bar=False, enable_model_summary=False,
+    trainer = L.Trainer(max_steps=max_steps, max_epochs=max_epochs, logger=False, enable_progress_bar=False, enable_model_summary=False,
                         default_root_dir=root, callbacks=[rates], enable_checkpointing=False)
     trainer.fit(model, DataLoader(videos, batch_size=2), ckpt_path=ckpt_path)
     trainer.save_checkpoint(root / "last.ckpt")
@@ -66,3 +66,15 @@ def test_a_fit_resumed_past_its_first_max_steps_anneals_as_an_uninterrupted_one(
     assert first[0] == pytest.approx(1e-3) and first[-1] < 1e-3
     resumed = fit(8, tmp_path / "resumed", ckpt_path=tmp_path / "cut" / "last.ckpt")
     assert resumed == pytest.approx(whole[5:])
+
+
+def test_the_fit_warns_when_it_stops_before_its_anneal_ends(tmp_path, caplog):
+    """One epoch of 4 batches with max_steps=8: the fit stops at step 4, where the anneal of the
+    last 4 steps would begin; a fit that reaches max_steps says nothing."""
+    with caplog.at_level("WARNING", logger="vgpl.models.visual_prior"):
+        fit(8, tmp_path / "cut", max_epochs=1)
+    assert "visual: stopped at step 4 of 8, before its learning-rate anneal began (model.visual.net.lr_anneal_steps=4)" in caplog.text
+    caplog.clear()
+    with caplog.at_level("WARNING", logger="vgpl.models.visual_prior"):
+        fit(8, tmp_path / "whole")
+    assert "stopped at step" not in caplog.text

@@ -8,12 +8,16 @@ units (training-split mean and std, stored with the checkpoint) and returned in 
 
 from __future__ import annotations
 
+import logging
+
 import lightning as L
 import torch
 from torch import nn
 from torch.nn import functional as F
 
-from vgpl.models.step_learning_rate import annealed_fraction, set_learning_rate
+from vgpl.models.step_learning_rate import annealed_fraction, set_learning_rate, unfinished_anneal
+
+log = logging.getLogger(__name__)
 
 
 def conv_block(c_in: int, c_out: int) -> nn.Sequential:
@@ -104,3 +108,10 @@ class VisualPrior(L.LightningModule):
         if self.hparams.lr_anneal_steps <= 0:
             return
         set_learning_rate(self, self.hparams.lr * annealed_fraction(self.global_step, self.trainer.max_steps, self.hparams.lr_anneal_steps))
+
+    def on_train_end(self) -> None:
+        """Warn when the fit stopped (trainer.max_time, max_epochs) before its anneal reached zero:
+        its last.ckpt then holds weights from a rate above zero."""
+        unfinished = unfinished_anneal("visual", self.hparams.lr_anneal_steps, self.global_step, self.trainer.max_steps)
+        if unfinished:
+            log.warning(unfinished)

@@ -13,7 +13,6 @@ from lightning.pytorch.loggers import TensorBoardLogger
 from omegaconf import DictConfig, OmegaConf
 
 from vgpl.hardware import precision_warning
-from vgpl.models.step_learning_rate import unfinished_anneal
 from vgpl.weight_averaging import ExponentialMovingAverage
 
 log = logging.getLogger(__name__)
@@ -83,9 +82,6 @@ def fit(cfg: DictConfig, stage: str, stage_cfg: DictConfig, model: L.LightningMo
     if ended["stopped_by"] == "max_time":
         log.warning("%s: trainer.max_time=%s stopped training after %d of %d steps; its results depend on this machine's speed",
                     stage, kwargs.get("max_time"), ended["steps"], ended["max_steps"])
-    unfinished = unfinished_anneal(stage, int(model.hparams.get("lr_anneal_steps", 0)), ended["steps"], ended["max_steps"])
-    if unfinished:
-        log.warning(unfinished)
     return trainer, folder / "last.ckpt"
 
 
