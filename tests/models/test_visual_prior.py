@@ -1,11 +1,16 @@
 """VisualPrior's learning-rate anneal (model.visual.net.lr_anneal_steps): constant, then a half
-cosine to zero over the last steps of trainer.max_steps, by global step, so resumed fits match."""
+cosine to zero over the last steps of trainer.max_steps, by global step, so resumed fits match;
+under a trainer.max_time over the same share of the time budget too, whichever ends first."""
 
 from __future__ import annotations
+
+from datetime import timedelta
 
 import lightning as L
 import pytest
 import torch
+from lightning.pytorch.callbacks import Timer
+from lightning.pytorch.trainer.states import RunningStage
 from torch.utils.data import DataLoader
 
 from vgpl.models.step_learning_rate import annealed_fraction, unfinished_anneal
@@ -19,6 +24,16 @@ def test_the_anneal_is_flat_then_a_half_cosine_ending_at_zero():
     assert annealed_fraction(10, 10, 4) == pytest.approx(0.0)
     with pytest.raises(ValueError, match="lr_anneal_steps=4 needs a finite trainer max_steps"):
         annealed_fraction(0, -1, 4)
+
+
+def test_under_a_time_budget_the_anneal_follows_whichever_schedule_is_further_on():
+    """Anneal the last 4 of 10 steps, and so the last 40% of a 100 s budget: at step 2 after 80 s
+    the clock is halfway through its anneal while the steps have not begun theirs."""
+    assert annealed_fraction(2, 10, 4, elapsed_s=80.0, budget_s=100.0) == pytest.approx(0.5)
+    assert annealed_fraction(2, 10, 4, elapsed_s=50.0, budget_s=100.0) == pytest.approx(1.0)
+    assert annealed_fraction(8, 10, 4, elapsed_s=10.0, budget_s=100.0) == pytest.approx(0.5)  # the steps lead
+    assert annealed_fraction(3, 10, 4, elapsed_s=100.0, budget_s=100.0) == pytest.approx(0.0)  # the clock ran out: zero
+    assert annealed_fraction(3, 10, 4, elapsed_s=None, budget_s=None) == 1.0  # no max_time: by step alone
 
 
 def test_a_fit_stopped_before_its_anneal_ended_says_so_and_how_to_finish():
@@ -42,14 +57,32 @@ class LearningRates(L.Callback):
         self.rates.append(optimizer.param_groups[0]["lr"])
 
 
-def fit(max_steps: int, root, ckpt_path=None, max_epochs: int = -1) -> list[float]:
+class BatchClock(Timer):
+    """trainer.max_time's Timer on a deterministic clock: one second per finished training batch.
+    Its time spent is saved in and restored from checkpoints as the real one's is."""
+
+    def __init__(self, budget_s: float) -> None:
+        super().__init__(duration=timedelta(seconds=budget_s))
+        self.batches = 0
+
+    def on_train_batch_end(self, trainer, *args, **kwargs) -> None:
+        self.batches += 1
+        super().on_train_batch_end(trainer, *args, **kwargs)
+
+    def time_elapsed(self, stage=RunningStage.TRAINING) -> float:
+        return float(self.batches + self._offset) if RunningStage(stage) == RunningStage.TRAINING else 0.0
+
+
+def fit(max_steps: int, root, ckpt_path=None, max_epochs: int = -1, anneal_steps: int = 4, clock_s: float | None = None,
+        videos: int = 8) -> list[float]:
     torch.manual_seed(0)
     videos = [{"frames": torch.randint(0, 255, (4, 16, 20, 3), dtype=torch.uint8), "positions": torch.randn(4, 3, 3),
-               "instance": torch.tensor([0, 0, 1])} for _ in range(8)]
-    model = VisualPrior(n_particles=3, n_instances=2, channels=[4, 4], pooled=[1, 1], hidden=8, lr=1e-3, lr_anneal_steps=4)
+               "instance": torch.tensor([0, 0, 1])} for _ in range(videos)]
+    model = VisualPrior(n_particles=3, n_instances=2, channels=[4, 4], pooled=[1, 1], hidden=8, lr=1e-3, lr_anneal_steps=anneal_steps)
     rates = LearningRates()
+    clock = [] if clock_s is None else [BatchClock(clock_s)]
     trainer = L.Trainer(max_steps=max_steps, max_epochs=max_epochs, logger=False, enable_progress_bar=False, enable_model_summary=False,
-                        default_root_dir=root, callbacks=[rates], enable_checkpointing=False)
+                        default_root_dir=root, callbacks=[rates, *clock], enable_checkpointing=False)
     trainer.fit(model, DataLoader(videos, batch_size=2), ckpt_path=ckpt_path)
     trainer.save_checkpoint(root / "last.ckpt")
     return rates.rates
@@ -78,3 +111,20 @@ def test_the_fit_warns_when_it_stops_before_its_anneal_ends(tmp_path, caplog):
     with caplog.at_level("WARNING", logger="vgpl.models.visual_prior"):
         fit(8, tmp_path / "whole")
     assert "stopped at step" not in caplog.text
+
+
+def test_a_fit_the_clock_stops_first_ends_annealed_and_resumes_on_the_same_schedule(tmp_path, caplog):
+    """max_steps 100 with the last 50 annealed, a 6 s budget on a clock of one second a batch: the
+    last half of the budget (3-6 s) is annealed, so batches 3, 4, 5 start at 3, 4, 5 s and take
+    lr x 1, 0.75, 0.25, and the clock stops the fit at 6 s, at zero, with no warning. A fit of one
+    3-batch epoch resumed from its checkpoint (Timer state: 3 s spent) takes the same last three."""
+    with caplog.at_level("WARNING", logger="vgpl.models.visual_prior"):
+        whole = fit(100, tmp_path / "whole", anneal_steps=50, clock_s=6.0, videos=6)
+    assert whole == pytest.approx([1e-3, 1e-3, 1e-3, 1e-3, 0.75e-3, 0.25e-3])
+    assert "stopped at step" not in caplog.text
+    with caplog.at_level("WARNING", logger="vgpl.models.visual_prior"):
+        first = fit(100, tmp_path / "cut", anneal_steps=50, clock_s=6.0, videos=6, max_epochs=1)
+    assert first == pytest.approx([1e-3] * 3)
+    assert "visual: stopped at step 3 of 100, before its learning-rate anneal began" in caplog.text
+    resumed = fit(100, tmp_path / "resumed", anneal_steps=50, clock_s=6.0, videos=6, ckpt_path=tmp_path / "cut" / "last.ckpt")
+    assert resumed == pytest.approx(whole[3:])

@@ -15,7 +15,7 @@ import torch
 from torch import nn
 from torch.nn import functional as F
 
-from vgpl.models.step_learning_rate import annealed_fraction, set_learning_rate, unfinished_anneal
+from vgpl.models.step_learning_rate import annealed_fraction, set_learning_rate, training_clock, unfinished_anneal
 
 log = logging.getLogger(__name__)
 
@@ -104,14 +104,19 @@ class VisualPrior(L.LightningModule):
         """With ``lr_anneal_steps`` = K > 0 the learning rate is constant until the last K steps of
         trainer.max_steps, then falls to zero along a half cosine. It is a function of global_step
         alone, so a fit resumed from a constant-rate checkpoint with a larger max_steps anneals its
-        added steps exactly as a fresh fit would (as DynamicsPrior.on_train_batch_start)."""
+        added steps exactly as a fresh fit would (as DynamicsPrior.on_train_batch_start). Under a
+        trainer.max_time the same share K / max_steps of the time budget is annealed too, and the
+        rate follows whichever schedule is further on (``annealed_fraction``), so a fit the clock
+        stops first still ends at zero."""
         if self.hparams.lr_anneal_steps <= 0:
             return
-        set_learning_rate(self, self.hparams.lr * annealed_fraction(self.global_step, self.trainer.max_steps, self.hparams.lr_anneal_steps))
+        fraction = annealed_fraction(self.global_step, self.trainer.max_steps, self.hparams.lr_anneal_steps, *training_clock(self.trainer))
+        set_learning_rate(self, self.hparams.lr * fraction)
 
     def on_train_end(self) -> None:
-        """Warn when the fit stopped (trainer.max_time, max_epochs) before its anneal reached zero:
-        its last.ckpt then holds weights from a rate above zero."""
-        unfinished = unfinished_anneal("visual", self.hparams.lr_anneal_steps, self.global_step, self.trainer.max_steps)
+        """Warn when the fit stopped (max_epochs) before its anneal reached zero: its last.ckpt
+        then holds weights from a rate above zero."""
+        unfinished = unfinished_anneal("visual", self.hparams.lr_anneal_steps, self.global_step, self.trainer.max_steps,
+                                       *training_clock(self.trainer))
         if unfinished:
             log.warning(unfinished)
