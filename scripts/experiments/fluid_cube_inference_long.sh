@@ -10,7 +10,7 @@
 #   C: A's setup from scratch plus a supervised L1 on P (param_weight, NOT the paper): can the shared
 #      encoder read viscosity at all? D: C with param_lr=1e-3 on P's head.
 #   the probe and the readout diagnostics (python scripts in this folder).
-# README: "FluidCube: the paper's separate parameter encoder ..." (session 23).
+# docs/experiments.md: "FluidCube: the paper's separate parameter encoder ..." (session 23).
 set -euo pipefail
 run() { python run.py env=fluid_cube experiment=standard "$@"; }
 CK=checkpoints/standard/fluid_cube

@@ -6,7 +6,7 @@
 # side by side on one thread each for about the wall time of the full modules they are compared
 # with (RigidFall: 3,060 steps in 1:35; MassRope: session 24's step2575 in 1:35), then task=evaluate
 # on the 100 test videos. The full, no_params and no_refinement rows are session 24's
-# (outputs/sep_evaluate_*; separate_param_net.sh). README: "The four-way study with two encoders".
+# (outputs/sep_evaluate_*; separate_param_net.sh). docs/experiments.md: "The `w/o rigidness` modules with two encoders".
 # Usage: bash scripts/experiments/no_rigidness_two_encoders.sh [max_time, 00:01:32:00]
 set -euo pipefail
 TIME=${1:-00:01:32:00}

@@ -5,7 +5,7 @@
 # now validating on the evaluation's window (val_window_span=0, standard preset). Then both arms of
 # each (EMA = last.ckpt, trained weights) through task=evaluate on the 100 test videos, and MassRope's
 # training-free ablations. Needs sessions 22-24's checkpoints (fluid_cube_inference_long.sh,
-# separate_param_net.sh). README: "Resumed two-encoder runs ..." (session 25).
+# separate_param_net.sh). docs/experiments.md: "Resumed two-encoder runs ..." (session 25).
 set -euo pipefail
 common=(experiment=standard task=train_inference threads=1 model.inference.net.trajectory_start=both
         model.inference.net.separate_param_net=true model.inference.ema.decay=0.998 trainer.limit_val_batches=50

@@ -73,7 +73,7 @@ def test_rollout_does_not_depend_on_its_batch():
 
 @pytest.mark.parametrize("env,span", [("rigid_fall", 5), ("fluid_cube", 20), ("mass_rope", 20)])
 def test_standard_preset_draws_rigid_falls_inference_windows_before_the_cubes_land(env, span):
-    """RigidFall's gravity shows only while the cubes fall (README, session 16): its standard
+    """RigidFall's gravity shows only while the cubes fall (docs/experiments.md, session 16): its standard
     inference windows start in frames 0-5; the other envs keep 20. An explicit override still wins."""
     with initialize_config_dir(str(REPO / "conf"), version_base="1.3"):
         cfg = compose("config", overrides=[f"env={env}", "experiment=standard"])
