@@ -13,6 +13,7 @@ from hydra import compose, initialize_config_dir
 from torch.utils.data import DataLoader, TensorDataset
 
 from tests.conftest import REPO
+from vgpl.models.step_learning_rate import annealed_fraction
 from vgpl.tasks.pipeline import training_summary
 from vgpl.tasks.stage import LastValidation, checkpointing, snapshots, stopping, trainer_kwargs, validate_final
 
@@ -181,3 +182,19 @@ def test_the_standard_inference_stage_is_trained_as_the_readmes_measured_runs(en
     assert (net.separate_param_net, net.trajectory_start, net.lr) == (True, "both", 1e-4)
     assert net.tail_horizon == 5 <= net.horizon  # a window holds the frames the tail is scored on
     assert cfg.model.inference.ema.decay == 0.998 and cfg.model.inference.ema.start_step == 0
+
+
+def test_the_standard_visual_stage_anneals_the_last_third_of_its_budget():
+    """Its 15-min cap stops it near step 1,000 of 3,000 on a 2-core CPU (session 35), so the anneal
+    of the last 1,000 steps runs on the clock: it begins at 10 of the 15 minutes and ends at zero
+    at the cap, and on a machine fast enough to reach 3,000 steps it begins at step 2,000."""
+    with initialize_config_dir(str(REPO / "conf"), version_base="1.3"):
+        cfg = compose("config", overrides=["env=rigid_fall", "experiment=standard"])
+    visual = cfg.model.visual
+    assert (visual.net.lr, visual.net.lr_anneal_steps, visual.trainer.max_steps) == (1e-4, 1000, 3000)
+    budget_s = 15 * 60
+    assert visual.trainer.max_time == "00:00:15:00"
+    assert annealed_fraction(900, 3000, 1000, elapsed_s=600.0, budget_s=budget_s) == 1.0
+    assert annealed_fraction(900, 3000, 1000, elapsed_s=750.0, budget_s=budget_s) == pytest.approx(0.5)
+    assert annealed_fraction(1000, 3000, 1000, elapsed_s=budget_s, budget_s=budget_s) == 0.0
+    assert annealed_fraction(2500, 3000, 1000, elapsed_s=60.0, budget_s=budget_s) == pytest.approx(0.5)
