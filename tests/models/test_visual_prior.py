@@ -74,10 +74,10 @@ class BatchClock(Timer):
 
 
 def fit(max_steps: int, root, ckpt_path=None, max_epochs: int = -1, anneal_steps: int = 4, clock_s: float | None = None,
-        videos: int = 8) -> list[float]:
+        n_videos: int = 8) -> list[float]:
     torch.manual_seed(0)
     videos = [{"frames": torch.randint(0, 255, (4, 16, 20, 3), dtype=torch.uint8), "positions": torch.randn(4, 3, 3),
-               "instance": torch.tensor([0, 0, 1])} for _ in range(videos)]
+               "instance": torch.tensor([0, 0, 1])} for _ in range(n_videos)]
     model = VisualPrior(n_particles=3, n_instances=2, channels=[4, 4], pooled=[1, 1], hidden=8, lr=1e-3, lr_anneal_steps=anneal_steps)
     rates = LearningRates()
     clock = [] if clock_s is None else [BatchClock(clock_s)]
@@ -119,12 +119,12 @@ def test_a_fit_the_clock_stops_first_ends_annealed_and_resumes_on_the_same_sched
     lr x 1, 0.75, 0.25, and the clock stops the fit at 6 s, at zero, with no warning. A fit of one
     3-batch epoch resumed from its checkpoint (Timer state: 3 s spent) takes the same last three."""
     with caplog.at_level("WARNING", logger="vgpl.models.visual_prior"):
-        whole = fit(100, tmp_path / "whole", anneal_steps=50, clock_s=6.0, videos=6)
+        whole = fit(100, tmp_path / "whole", anneal_steps=50, clock_s=6.0, n_videos=6)
     assert whole == pytest.approx([1e-3, 1e-3, 1e-3, 1e-3, 0.75e-3, 0.25e-3])
     assert "stopped at step" not in caplog.text
     with caplog.at_level("WARNING", logger="vgpl.models.visual_prior"):
-        first = fit(100, tmp_path / "cut", anneal_steps=50, clock_s=6.0, videos=6, max_epochs=1)
+        first = fit(100, tmp_path / "cut", anneal_steps=50, clock_s=6.0, n_videos=6, max_epochs=1)
     assert first == pytest.approx([1e-3] * 3)
     assert "visual: stopped at step 3 of 100, before its learning-rate anneal began" in caplog.text
-    resumed = fit(100, tmp_path / "resumed", anneal_steps=50, clock_s=6.0, videos=6, ckpt_path=tmp_path / "cut" / "last.ckpt")
+    resumed = fit(100, tmp_path / "resumed", anneal_steps=50, clock_s=6.0, n_videos=6, ckpt_path=tmp_path / "cut" / "last.ckpt")
     assert resumed == pytest.approx(whole[3:])

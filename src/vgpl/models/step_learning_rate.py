@@ -52,9 +52,9 @@ def training_clock(trainer: L.Trainer) -> tuple[float | None, float | None]:
 
 def unfinished_anneal(stage: str, anneal_steps: int, steps: int, max_steps: int, elapsed_s: float | None = None,
                       budget_s: float | None = None) -> str | None:
-    """The warning for a fit that stopped (on max_epochs, or a time cap without a time-aware anneal)
-    before its anneal reached zero, so that its last.ckpt holds weights from a rate above zero;
-    None when the anneal is off or done."""
+    """The warning for a fit that stopped before its anneal reached zero (on max_epochs, or any stop
+    other than max_steps and max_time, both of which end it at zero), so that its last.ckpt holds
+    weights from a rate above zero; None when the anneal is off or done."""
     if anneal_steps <= 0:
         return None
     reached = annealed_fraction(steps, max_steps, anneal_steps, elapsed_s, budget_s)
