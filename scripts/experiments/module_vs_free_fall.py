@@ -19,6 +19,7 @@ from vgpl.checkpoint import load_stage, scene_of
 from vgpl.data.grounding import split_with_proposals
 from vgpl.eval.free_fall import FreeFallSplit, calibration
 from vgpl.eval.grounding import infer_in_chunks
+from vgpl.eval.metrics import param_signed_error_pct
 from vgpl.models.inference import InferenceModule
 
 FRAMES = 10
@@ -30,7 +31,7 @@ def main(root: str, checkpoints: list[str]) -> None:
     held_out = FreeFallSplit.of(test, proposals, FRAMES)
     a, b = calibration(train.fit(), train.gravity)
     low, high = float(test.param_low[0]), float(test.param_high[0])
-    fit_error = ((a + b * held_out.fit()).clamp(low, high) - held_out.gravity) / (high - low) * 100  # % of the range
+    fit_error = param_signed_error_pct((a + b * held_out.fit()).clamp(low, high), held_out.gravity, low, high)
     print(f"{root}: calibrated free-fall fit, gravity MAE {fit_error.abs().mean():.2f}%")
     errors = []
     for ckpt in checkpoints:

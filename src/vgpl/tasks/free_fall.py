@@ -15,6 +15,7 @@ from omegaconf import DictConfig
 
 from vgpl.data.grounding import split_with_proposals
 from vgpl.eval.free_fall import FreeFallSplit, calibration
+from vgpl.eval.metrics import param_signed_error_pct
 from vgpl.eval.tables import markdown
 
 log = logging.getLogger(__name__)
@@ -33,7 +34,7 @@ def free_fall_gravity(cfg: DictConfig) -> dict:
             raise ValueError(f"task.frames={frames}: expected 3 to {proposals.positions.shape[1]} (the frames the {split} proposals cover)")
         splits[split] = FreeFallSplit.of(rollouts, proposals, frames)
     train, test = splits["train"], splits["test"]
-    pct = lambda g: (g.clamp(low, high) - test.gravity) / (high - low) * 100  # noqa: E731  (clipped to the range, as P is)
+    pct = lambda g: param_signed_error_pct(g.clamp(low, high), test.gravity, low, high)  # noqa: E731  (clipped to the range, as P is)
     rows = []
     for scale in [float(s) for s in cfg.task.error_scales]:
         a, b = calibration(train.fit(scale), train.gravity)
