@@ -1,13 +1,20 @@
 from __future__ import annotations
 
+import math
+
+import hydra
+import lightning as L
 import pytest
 import torch
 from omegaconf import OmegaConf
+from torch.utils.data import DataLoader
 
 from tests.conftest import REPO
+from tests.models.test_visual_prior import BatchClock
 from vgpl.graph import own_radius_graph
 from vgpl.models.dynamics_prior import DynamicsPrior
 from vgpl.models.inference import InferenceModule
+from vgpl.models.step_learning_rate import annealed_fraction
 from vgpl.models.visual_prior import VisualPrior
 from vgpl.data.proposals import propose_videos
 from vgpl.tasks.pipeline import ABLATIONS, ablation_config
@@ -186,3 +193,59 @@ def test_without_param_lr_one_group_and_a_bad_one_is_refused():
     assert len(inf.configure_optimizers().param_groups) == 1
     with pytest.raises(ValueError, match="param_lr=0"):
         _modules(param_lr=0)
+
+
+class GroupRates(L.Callback):
+    """The rate of every parameter group at each optimiser step."""
+
+    def __init__(self) -> None:
+        self.rates: list[list[float]] = []
+
+    def on_before_optimizer_step(self, trainer, pl_module, optimizer) -> None:
+        self.rates.append([g["lr"] for g in optimizer.param_groups])
+
+
+def _fit_annealed(root, max_epochs: int = -1, clock_s: float | None = None) -> list[list[float]]:
+    """8 steps (max_steps 8) of batch 1 with the last 4 annealed, lr 1e-4 and param_lr 3e-3."""
+    _, inf = _modules(lr=1e-4, param_lr=3e-3, lr_anneal_steps=4)
+    batch = _batch(b=1)
+    samples = [{k: v[0] for k, v in batch.items()} for _ in range(8)]
+    rates = GroupRates()
+    trainer = L.Trainer(max_steps=8, max_epochs=max_epochs, limit_train_batches=4 if max_epochs > 0 else None, logger=False,
+                        enable_progress_bar=False, enable_model_summary=False, enable_checkpointing=False, default_root_dir=root,
+                        callbacks=[rates] + ([] if clock_s is None else [BatchClock(clock_s)]))
+    trainer.fit(inf, DataLoader(samples, batch_size=1))
+    return rates.rates
+
+
+def test_the_anneal_scales_both_learning_rates_to_zero_together(tmp_path):
+    """model.inference.net.lr_anneal_steps: steps 0-4 at (lr, param_lr), then both times the same
+    half cosine (VisualPrior's schedule); under a clock of one second a batch and a 4 s budget the
+    last half of it anneals too (batches 2, 3 at x 1 and x 0.5), and the fit stops at zero."""
+    by_step = _fit_annealed(tmp_path / "steps")
+    expected = [annealed_fraction(s, 8, 4) for s in range(8)]
+    assert [r[0] for r in by_step] == pytest.approx([1e-4 * f for f in expected])
+    assert [r[1] for r in by_step] == pytest.approx([3e-3 * f for f in expected])
+    assert by_step[4] == pytest.approx([1e-4, 3e-3]) and by_step[7][1] == pytest.approx(3e-3 * 0.5 * (1 + math.cos(math.pi * 3 / 4)))
+    by_clock = _fit_annealed(tmp_path / "clock", clock_s=4.0)
+    assert [r for step in by_clock for r in step] == pytest.approx([1e-4, 3e-3] * 3 + [0.5e-4, 1.5e-3])
+
+
+def test_an_inference_fit_cut_before_its_anneal_warns_with_its_own_key(tmp_path, caplog):
+    with caplog.at_level("WARNING", logger="vgpl.models.step_learning_rate"):
+        rates = _fit_annealed(tmp_path, max_epochs=1)
+    assert len(rates) == 4
+    assert "inference: stopped at step 4 of 8, before its learning-rate anneal began (model.inference.net.lr_anneal_steps=4)" in caplog.text
+    _, inf = _modules(lr_anneal_steps=4)
+    with pytest.raises(ValueError, match=r"model\.inference\.net\.lr_anneal_steps=4 needs a finite model\.inference\.trainer\.max_steps"):
+        annealed_fraction(0, -1, 4, stage=inf.anneal_stage)
+
+
+def test_the_config_key_reaches_the_module():
+    """model.inference.net.lr_anneal_steps is off by default (the paper's constant rate) and is
+    built into the module as train_inference instantiates it."""
+    net = OmegaConf.load(REPO / "conf/model/vgpl.yaml").inference.net
+    assert net.lr_anneal_steps == 0
+    net.lr_anneal_steps = 700
+    model = hydra.utils.instantiate(net, _convert_="all", param_low=[-15.0], param_high=[-5.0], n_particles=24, n_instances=2, radius=0.3)
+    assert model.hparams.lr_anneal_steps == 700 and model.anneal_stage == "inference"

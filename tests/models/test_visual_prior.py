@@ -22,7 +22,7 @@ def test_the_anneal_is_flat_then_a_half_cosine_ending_at_zero():
     assert annealed_fraction(8, 10, 4) == pytest.approx(0.5)
     assert annealed_fraction(7, 10, 4) == pytest.approx(0.5 * (1 + 2 ** -0.5))
     assert annealed_fraction(10, 10, 4) == pytest.approx(0.0)
-    with pytest.raises(ValueError, match="lr_anneal_steps=4 needs a finite trainer max_steps"):
+    with pytest.raises(ValueError, match=r"model\.visual\.net\.lr_anneal_steps=4 needs a finite model\.visual\.trainer\.max_steps"):
         annealed_fraction(0, -1, 4)
 
 
@@ -104,11 +104,11 @@ def test_a_fit_resumed_past_its_first_max_steps_anneals_as_an_uninterrupted_one(
 def test_the_fit_warns_when_it_stops_before_its_anneal_ends(tmp_path, caplog):
     """One epoch of 4 batches with max_steps=8: the fit stops at step 4, where the anneal of the
     last 4 steps would begin; a fit that reaches max_steps says nothing."""
-    with caplog.at_level("WARNING", logger="vgpl.models.visual_prior"):
+    with caplog.at_level("WARNING", logger="vgpl.models.step_learning_rate"):
         fit(8, tmp_path / "cut", max_epochs=1)
     assert "visual: stopped at step 4 of 8, before its learning-rate anneal began (model.visual.net.lr_anneal_steps=4)" in caplog.text
     caplog.clear()
-    with caplog.at_level("WARNING", logger="vgpl.models.visual_prior"):
+    with caplog.at_level("WARNING", logger="vgpl.models.step_learning_rate"):
         fit(8, tmp_path / "whole")
     assert "stopped at step" not in caplog.text
 
@@ -118,11 +118,11 @@ def test_a_fit_the_clock_stops_first_ends_annealed_and_resumes_on_the_same_sched
     last half of the budget (3-6 s) is annealed, so batches 3, 4, 5 start at 3, 4, 5 s and take
     lr x 1, 0.75, 0.25, and the clock stops the fit at 6 s, at zero, with no warning. A fit of one
     3-batch epoch resumed from its checkpoint (Timer state: 3 s spent) takes the same last three."""
-    with caplog.at_level("WARNING", logger="vgpl.models.visual_prior"):
+    with caplog.at_level("WARNING", logger="vgpl.models.step_learning_rate"):
         whole = fit(100, tmp_path / "whole", anneal_steps=50, clock_s=6.0, n_videos=6)
     assert whole == pytest.approx([1e-3, 1e-3, 1e-3, 1e-3, 0.75e-3, 0.25e-3])
     assert "stopped at step" not in caplog.text
-    with caplog.at_level("WARNING", logger="vgpl.models.visual_prior"):
+    with caplog.at_level("WARNING", logger="vgpl.models.step_learning_rate"):
         first = fit(100, tmp_path / "cut", anneal_steps=50, clock_s=6.0, n_videos=6, max_epochs=1)
     assert first == pytest.approx([1e-3] * 3)
     assert "visual: stopped at step 3 of 100, before its learning-rate anneal began" in caplog.text

@@ -10,6 +10,8 @@ whatever the scene (measured; README, Design). ``"both"`` rolls from each, P lea
 true start only and dX through the refined one. ``tail_horizon`` k > 0 adds an L1 of k frames
 rolled from the last ``history`` refined frames, where the evaluation starts (not the paper);
 ``tail_detach_params`` keeps P out of it, as "both" keeps P out of the refined start.
+``lr_anneal_steps`` K > 0 anneals every rate to zero over the last K steps (or the same share of
+a trainer.max_time; ``AnnealedLearningRate``, as VisualPrior's; not the paper).
 Nothing supervises Q or P directly, unless
 ``param_weight`` > 0 adds an L1 on P (not the paper: a shortcut for presets of a few CPU
 minutes, whose dynamics prior is too weak to ground P through; README).
@@ -24,6 +26,7 @@ from torch_geometric.nn import MLP
 
 from vgpl.eval.rollout import rollout
 from vgpl.graph import edge_features, radius_graph
+from vgpl.models.step_learning_rate import AnnealedLearningRate
 from vgpl.nn.normalisation import NormalisationBuffers
 from vgpl.nn.propagation import EdgeEncoder, Propagator
 
@@ -70,7 +73,9 @@ class SpatioTemporalEncoder(nn.Module):
         return out.reshape(b, n, t, -1).permute(0, 2, 1, 3)
 
 
-class InferenceModule(NormalisationBuffers, L.LightningModule):
+class InferenceModule(AnnealedLearningRate, NormalisationBuffers, L.LightningModule):
+    anneal_stage = "inference"
+
     def __init__(
         self,
         param_low: list[float],
@@ -93,6 +98,7 @@ class InferenceModule(NormalisationBuffers, L.LightningModule):
         param_lr: float | None = None,
         tail_horizon: int = 0,
         tail_detach_params: bool = False,
+        lr_anneal_steps: int = 0,
     ) -> None:
         super().__init__()
         if not 0 <= tail_horizon <= horizon:
@@ -259,3 +265,7 @@ class InferenceModule(NormalisationBuffers, L.LightningModule):
         in_pathway = {id(w) for w in pathway}
         rest = [w for w in self.parameters() if id(w) not in in_pathway]
         return torch.optim.Adam([{"params": rest}, {"params": pathway, "lr": self.hparams.param_lr}], lr=self.hparams.lr)
+
+    def base_learning_rates(self) -> list[float]:
+        """The rate of each of configure_optimizers' parameter groups, which ``lr_anneal_steps`` scales."""
+        return [self.hparams.lr] + ([] if self.hparams.param_lr is None else [self.hparams.param_lr])

@@ -8,17 +8,12 @@ units (training-split mean and std, stored with the checkpoint) and returned in 
 
 from __future__ import annotations
 
-import logging
-
 import lightning as L
 import torch
 from torch import nn
 from torch.nn import functional as F
 
-from vgpl.models.step_learning_rate import annealed_fraction, set_learning_rate, training_clock, unfinished_anneal
-
-log = logging.getLogger(__name__)
-
+from vgpl.models.step_learning_rate import AnnealedLearningRate
 
 def conv_block(c_in: int, c_out: int) -> nn.Sequential:
     """3x3 conv + BN + ReLU, then a stride-2 3x3 conv + BN + ReLU (halves H and W)."""
@@ -28,7 +23,7 @@ def conv_block(c_in: int, c_out: int) -> nn.Sequential:
     )
 
 
-class VisualPrior(L.LightningModule):
+class VisualPrior(AnnealedLearningRate, L.LightningModule):
     def __init__(
         self,
         n_particles: int,
@@ -99,24 +94,3 @@ class VisualPrior(L.LightningModule):
 
     def configure_optimizers(self):
         return torch.optim.Adam(self.parameters(), lr=self.hparams.lr)
-
-    def on_train_batch_start(self, batch, batch_idx) -> None:
-        """With ``lr_anneal_steps`` = K > 0 the learning rate is constant until the last K steps of
-        trainer.max_steps, then falls to zero along a half cosine. It is a function of global_step
-        alone, so a fit resumed from a constant-rate checkpoint with a larger max_steps anneals its
-        added steps exactly as a fresh fit would (as DynamicsPrior.on_train_batch_start). Under a
-        trainer.max_time the same share K / max_steps of the time budget is annealed too, and the
-        rate follows whichever schedule is further on (``annealed_fraction``), so a fit the clock
-        stops first still ends at zero."""
-        if self.hparams.lr_anneal_steps <= 0:
-            return
-        fraction = annealed_fraction(self.global_step, self.trainer.max_steps, self.hparams.lr_anneal_steps, *training_clock(self.trainer))
-        set_learning_rate(self, self.hparams.lr * fraction)
-
-    def on_train_end(self) -> None:
-        """Warn when the fit stopped (max_epochs) before its anneal reached zero: its last.ckpt
-        then holds weights from a rate above zero."""
-        unfinished = unfinished_anneal("visual", self.hparams.lr_anneal_steps, self.global_step, self.trainer.max_steps,
-                                       *training_clock(self.trainer))
-        if unfinished:
-            log.warning(unfinished)
