@@ -86,7 +86,7 @@ class AnnealedLearningRate:
     A module names its config group in ``anneal_stage`` and may override ``base_learning_rates``
     (one rate per optimiser parameter group, as configure_optimizers builds them)."""
 
-    anneal_stage = "visual"
+    anneal_stage: str  # model.<anneal_stage>.net.lr_anneal_steps: named in errors and warnings
 
     def base_learning_rates(self) -> list[float]:
         return [self.hparams.lr]

@@ -24,6 +24,8 @@ def conv_block(c_in: int, c_out: int) -> nn.Sequential:
 
 
 class VisualPrior(AnnealedLearningRate, L.LightningModule):
+    anneal_stage = "visual"
+
     def __init__(
         self,
         n_particles: int,
