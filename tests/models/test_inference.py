@@ -10,7 +10,7 @@ from omegaconf import OmegaConf
 from torch.utils.data import DataLoader
 
 from tests.conftest import REPO
-from tests.models.test_visual_prior import BatchClock
+from tests.models.learning_rate_callbacks import BatchClock, LearningRates
 from vgpl.graph import own_radius_graph
 from vgpl.models.dynamics_prior import DynamicsPrior
 from vgpl.models.inference import InferenceModule
@@ -195,22 +195,12 @@ def test_without_param_lr_one_group_and_a_bad_one_is_refused():
         _modules(param_lr=0)
 
 
-class GroupRates(L.Callback):
-    """The rate of every parameter group at each optimiser step."""
-
-    def __init__(self) -> None:
-        self.rates: list[list[float]] = []
-
-    def on_before_optimizer_step(self, trainer, pl_module, optimizer) -> None:
-        self.rates.append([g["lr"] for g in optimizer.param_groups])
-
-
 def _fit_annealed(root, max_epochs: int = -1, clock_s: float | None = None) -> list[list[float]]:
     """8 steps (max_steps 8) of batch 1 with the last 4 annealed, lr 1e-4 and param_lr 3e-3."""
     _, inf = _modules(lr=1e-4, param_lr=3e-3, lr_anneal_steps=4)
     batch = _batch(b=1)
     samples = [{k: v[0] for k, v in batch.items()} for _ in range(8)]
-    rates = GroupRates()
+    rates = LearningRates()
     trainer = L.Trainer(max_steps=8, max_epochs=max_epochs, limit_train_batches=4 if max_epochs > 0 else None, logger=False,
                         enable_progress_bar=False, enable_model_summary=False, enable_checkpointing=False, default_root_dir=root,
                         callbacks=[rates] + ([] if clock_s is None else [BatchClock(clock_s)]))

@@ -4,15 +4,12 @@ under a trainer.max_time over the same share of the time budget too, whichever e
 
 from __future__ import annotations
 
-from datetime import timedelta
-
 import lightning as L
 import pytest
 import torch
-from lightning.pytorch.callbacks import Timer
-from lightning.pytorch.trainer.states import RunningStage
 from torch.utils.data import DataLoader
 
+from tests.models.learning_rate_callbacks import BatchClock, LearningRates
 from vgpl.models.step_learning_rate import annealed_fraction, unfinished_anneal
 from vgpl.models.visual_prior import VisualPrior
 
@@ -47,32 +44,6 @@ def test_a_fit_stopped_before_its_anneal_ended_says_so_and_how_to_finish():
     assert unfinished_anneal("visual", 0, 10, 7000) is None  # no anneal (the paper's constant rate)
 
 
-class LearningRates(L.Callback):
-    """The rate each optimiser step used."""
-
-    def __init__(self) -> None:
-        self.rates: list[float] = []
-
-    def on_before_optimizer_step(self, trainer, pl_module, optimizer) -> None:
-        self.rates.append(optimizer.param_groups[0]["lr"])
-
-
-class BatchClock(Timer):
-    """trainer.max_time's Timer on a deterministic clock: one second per finished training batch.
-    Its time spent is saved in and restored from checkpoints as the real one's is."""
-
-    def __init__(self, budget_s: float) -> None:
-        super().__init__(duration=timedelta(seconds=budget_s))
-        self.batches = 0
-
-    def on_train_batch_end(self, trainer, *args, **kwargs) -> None:
-        self.batches += 1
-        super().on_train_batch_end(trainer, *args, **kwargs)
-
-    def time_elapsed(self, stage=RunningStage.TRAINING) -> float:
-        return float(self.batches + self._offset) if RunningStage(stage) == RunningStage.TRAINING else 0.0
-
-
 def fit(max_steps: int, root, ckpt_path=None, max_epochs: int = -1, anneal_steps: int = 4, clock_s: float | None = None,
         n_videos: int = 8) -> list[float]:
     torch.manual_seed(0)
@@ -85,7 +56,7 @@ def fit(max_steps: int, root, ckpt_path=None, max_epochs: int = -1, anneal_steps
                         default_root_dir=root, callbacks=[rates, *clock], enable_checkpointing=False)
     trainer.fit(model, DataLoader(videos, batch_size=2), ckpt_path=ckpt_path)
     trainer.save_checkpoint(root / "last.ckpt")
-    return rates.rates
+    return rates.first_group()
 
 
 def test_a_fit_resumed_past_its_first_max_steps_anneals_as_an_uninterrupted_one(tmp_path):
