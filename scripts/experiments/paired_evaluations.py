@@ -1,0 +1,70 @@
+"""Two task=evaluate runs of one env on the same test videos (e.g. two inference modules trained
+on the same prior and proposals): each one's parameter MAE (% of range) and T+20 MSE x 1e4, and
+B - A paired by rollout id with a bootstrap interval (vgpl.eval.paired). task=report pools runs of
+one method; this compares two (session 37: the inference anneal against the constant rate).
+
+Usage: python scripts/experiments/paired_evaluations.py --env rigid_fall A_DIR B_DIR [C_DIR ...]
+       (each DIR holds a params.csv; the first is the reference A)
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+from pathlib import Path
+
+import torch
+from hydra.utils import instantiate
+from omegaconf import OmegaConf
+
+from vgpl.eval.metrics import param_error_pct
+from vgpl.eval.paired import paired_bootstrap
+
+REPO = Path(__file__).resolve().parents[2]
+
+
+def read_params(folder: Path, names: list[str]) -> dict[int, tuple[list[float], list[float], float]]:
+    """rollout id -> (true P, inferred P, T+20 MSE x 1e4) from ``folder``/params.csv."""
+    path = folder / "params.csv"
+    if not path.is_file():
+        raise SystemExit(f"{path}: no params.csv (a task=evaluate output folder was expected)")
+    with path.open() as f:
+        rows = list(csv.DictReader(f))
+    needed = [f"true_{n}" for n in names] + [f"inferred_{n}" for n in names] + ["future_mse_x1e4@20"]
+    missing = [k for k in needed if k not in rows[0]]
+    if missing:
+        raise SystemExit(f"{path}: columns {missing} missing (expected {needed}: is it another env's?)")
+    return {int(r["rollout_id"]): ([float(r[f"true_{n}"]) for n in names], [float(r[f"inferred_{n}"]) for n in names],
+                                   float(r["future_mse_x1e4@20"])) for r in rows}
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("dirs", nargs="+", type=Path, help="task=evaluate folders; the first is the reference")
+    parser.add_argument("--env", required=True, choices=["rigid_fall", "fluid_cube", "mass_rope"])
+    args = parser.parse_args()
+    if len(args.dirs) < 2:
+        raise SystemExit("give at least two task=evaluate folders to compare")
+    scene = instantiate(OmegaConf.load(REPO / "conf" / "env" / f"{args.env}.yaml").scene)  # the env's names and ranges
+    low, high = torch.as_tensor(scene.param_low), torch.as_tensor(scene.param_high)
+    names = list(scene.param_names)
+    runs = [read_params(d, names) for d in args.dirs]
+    ids = sorted(set.intersection(*(set(r) for r in runs)))
+    if not ids:
+        raise SystemExit(f"{[str(d) for d in args.dirs]}: no test video in common")
+    errors, future = [], []
+    for run in runs:
+        truth, pred = (torch.tensor([run[i][k] for i in ids]) for k in (0, 1))
+        errors.append(param_error_pct(pred, truth, low, high).mean(1))  # [R]
+        future.append(torch.tensor([run[i][2] for i in ids]))
+    print(f"{args.env}, {len(ids)} test videos in common; B - A paired by video, 95% bootstrap interval")
+    print(f"A {args.dirs[0]}: parameter MAE {errors[0].mean():.2f}% (std {errors[0].std():.2f}), T+20 {future[0].mean():.1f} (median {future[0].median():.1f})")
+    for d, e, f in zip(args.dirs[1:], errors[1:], future[1:]):
+        pe, pf = paired_bootstrap(errors[0], e), paired_bootstrap(future[0], f)
+        print(f"B {d}: parameter MAE {e.mean():.2f}% (std {e.std():.2f}), T+20 {f.mean():.1f} (median {f.median():.1f})")
+        print(f"  B - A: parameter MAE {pe['mean_diff']:+.2f} [{pe['low']:+.2f}, {pe['high']:+.2f}] pts, A lower on {pe['reference_lower_share']:.0%};"
+              f" T+20 {pf['mean_diff']:+.1f} [{pf['low']:+.1f}, {pf['high']:+.1f}], A lower on {pf['reference_lower_share']:.0%}")
+
+
+if __name__ == "__main__":
+    main()
