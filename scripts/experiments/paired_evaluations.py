@@ -14,13 +14,10 @@ import csv
 from pathlib import Path
 
 import torch
-from hydra.utils import instantiate
-from omegaconf import OmegaConf
 
 from vgpl.eval.metrics import param_error_pct
 from vgpl.eval.paired import paired_bootstrap
-
-REPO = Path(__file__).resolve().parents[2]
+from vgpl.sim.envs import ENVS, make_scene
 
 
 def read_params(folder: Path, names: list[str]) -> dict[int, tuple[list[float], list[float], float]]:
@@ -41,11 +38,11 @@ def read_params(folder: Path, names: list[str]) -> dict[int, tuple[list[float], 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("dirs", nargs="+", type=Path, help="task=evaluate folders; the first is the reference")
-    parser.add_argument("--env", required=True, choices=["rigid_fall", "fluid_cube", "mass_rope"])
+    parser.add_argument("--env", required=True, choices=sorted(ENVS))
     args = parser.parse_args()
     if len(args.dirs) < 2:
         raise SystemExit("give at least two task=evaluate folders to compare")
-    scene = instantiate(OmegaConf.load(REPO / "conf" / "env" / f"{args.env}.yaml").scene)  # the env's names and ranges
+    scene = make_scene(args.env)  # its parameter names and ranges, as pooled_minimum.py reads them
     low, high = torch.as_tensor(scene.param_low), torch.as_tensor(scene.param_high)
     names = list(scene.param_names)
     runs = [read_params(d, names) for d in args.dirs]
