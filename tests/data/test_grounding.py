@@ -116,3 +116,23 @@ def test_proposals_of_other_rollouts_are_refused_by_file_name(tmp_path):
     write_proposals(path, Proposals(torch.rand(3, 12, 95, 3), torch.zeros(3, 12, 95, 2), ids.flip(0), {}))
     with pytest.raises(DatasetError, match=r"mass_rope/proposals/train.h5: 'rollout_ids' do not match the dataset's; re-export"):
         split_with_proposals(tmp_path, "mass_rope", "train")
+
+
+def test_exported_proposals_are_taken_by_rollout_id_and_refused_by_file_name(tmp_path):
+    """eval.proposals=exported reads the test split's proposals file: the rows of the evaluated
+    videos in their order, and one error naming the file where it cannot serve them."""
+    from vgpl.data.proposals import exported_proposals, write_proposals
+
+    positions, logits = torch.rand(3, 12, 95, 3), torch.rand(3, 12, 95, 2)
+    path = write_proposals(tmp_path / "test.h5", Proposals(positions, logits, torch.tensor([7, 3, 5]), {"source": "visual"}))
+    got = exported_proposals(path, torch.tensor([5, 7]), frames=10)
+    assert got.rollout_ids.tolist() == [5, 7] and got.positions.shape == (2, 10, 95, 3)
+    torch.testing.assert_close(got.positions, positions[[2, 0], :10])
+    torch.testing.assert_close(got.logits, logits[[2, 0], :10])
+    with pytest.raises(DatasetError, match=r"test.h5: no proposals for rollout_ids \[9\] of the test split \(3 exported\)"):
+        exported_proposals(path, torch.tensor([5, 9]), frames=10)
+    with pytest.raises(DatasetError, match=r"test.h5: proposals of 12 frames, the evaluation reads 13 .*window_span"):
+        exported_proposals(path, torch.tensor([5]), frames=13)
+    truth = write_proposals(tmp_path / "truth.h5", Proposals(positions, logits, torch.tensor([7, 3, 5]), {"source": "truth"}))
+    with pytest.raises(DatasetError, match=r"truth.h5: truth proposals"):
+        exported_proposals(truth, torch.tensor([5]), frames=10)

@@ -120,3 +120,18 @@ def test_tracing_the_error_sources_rolls_the_same_inferred_rollout_and_changes_n
     for k in (1, 5):
         assert traced.sources["inferred"][f"future_mse_x1e4@{k}"] == pytest.approx(plain.metrics[f"future_mse_x1e4@{k}"], rel=1e-5)
     assert len(traced.sources["all true"]["per_video@5"]) == r
+
+
+def test_exported_proposals_give_the_visual_priors_numbers_without_it():
+    """``exported`` (eval.proposals=exported): the visual prior's proposals of the whole videos, as
+    task=export_proposals writes them, give the numbers the visual prior gives, with no prior."""
+    from vgpl.data.proposals import propose_videos
+
+    (dyn, visual, inf, scene, test), _ = _setup()
+    by_video = evaluate_grounding(dyn, visual, inf, scene, test, _ablation(), **KWARGS)
+    exported = propose_videos(visual, test.images[:, :20])  # more frames than the evaluation reads (8)
+    read = evaluate_grounding(dyn, None, inf, scene, dataclasses.replace(test, images=None), _ablation(), exported=exported, **KWARGS)
+    _assert_same_metrics(read.metrics, by_video.metrics)
+    torch.testing.assert_close(read.params, by_video.params)
+    with pytest.raises(ValueError, match="eval.proposals=exported: proposals of 7 frames, the evaluation reads 8"):
+        evaluate_grounding(dyn, None, inf, scene, test, _ablation(), exported=tuple(x[:, :7] for x in exported), **KWARGS)

@@ -133,6 +133,19 @@ def test_evaluation_with_truth_proposals_reads_no_video_or_visual_prior_and_says
     assert not (tmp_path / "bad").exists()  # refused before anything is written
 
 
+def test_evaluation_from_the_exported_test_proposals_gives_the_visual_priors_numbers(tiny, tmp_path):
+    """eval.proposals=exported: the pipeline's own export of the test split (18 frames) replaces the
+    visual prior, which is never opened (e.g. a prior trained on another machine), and says so."""
+    tmp, result = tiny
+    full = next(r for r in result["records"] if r["method"] == "vgpl" and r["ablation"] == "full")
+    again = evaluate(config(tmp, "task=evaluate", "eval.proposals=exported", f"ckpt.visual={tmp_path}/no_visual.ckpt", f"paths.output_dir={tmp_path}/exported"))
+    assert again["proposals"] == "exported" and again["checkpoints"]["proposals"].endswith("rigid_fall/proposals/test.h5")
+    for key, value in full.items():
+        if key.startswith(("param_mae", "future_mse", "refine_mse", "rigidness_prob")):
+            assert again[key] == pytest.approx(value, rel=1e-4, abs=1e-6), key
+    assert "eval.proposals=exported" in (tmp_path / "exported/report.md").read_text()
+
+
 def test_evaluation_can_trace_where_the_future_error_comes_from(tiny, tmp_path):
     """eval.error_sources=true: the prior rolled again with each inferred input taken from the truth."""
     tmp, _ = tiny

@@ -34,7 +34,7 @@ class Proposals:
 def propose_videos(model, images: torch.Tensor, batch_size: int = 64, progress: bool = False) -> tuple[torch.Tensor, torch.Tensor]:
     """Slide the model's F-frame window one frame at a time over each video and keep the last
     frame of every window (the paper's temporal protocol); the first F - 1 frames come from the
-    first window.
+    first window. Windows run on the model's device; the outputs are on the CPU.
 
     Args: images uint8 [R, T, H, W, 3]. Returns positions [R, T, N, 3], logits [R, T, N, M].
     """
@@ -48,8 +48,8 @@ def propose_videos(model, images: torch.Tensor, batch_size: int = 64, progress: 
     logits = torch.zeros(r, t, model.hparams.n_particles, model.hparams.n_instances)
     for k in tqdm(range(0, len(starts), batch_size), desc="proposals", disable=not progress, unit="batch"):
         chunk = starts[k : k + batch_size]
-        frames = torch.stack([images[i, s : s + f] for i, s in chunk])
-        p, g = model.propose(frames)
+        frames = torch.stack([images[i, s : s + f] for i, s in chunk]).to(model.device)
+        p, g = (x.cpu() for x in model.propose(frames))
         for (i, s), pi, gi in zip(chunk, p, g):
             if s == 0:
                 pos[i, :f], logits[i, :f] = pi, gi
@@ -58,12 +58,15 @@ def propose_videos(model, images: torch.Tensor, batch_size: int = 64, progress: 
     return pos, logits
 
 
-def proposal_source(source: str, noise_std: float, source_option: str, noise_option: str) -> tuple[str, float]:
+def proposal_source(source: str, noise_std: float, source_option: str, noise_option: str, exported: bool = False) -> tuple[str, float]:
     """Check where proposals come from, as the options ``source_option`` / ``noise_option`` give it:
-    ``visual`` (the visual prior's, no noise) or ``truth`` (``truth_proposals``, noise >= 0).
+    ``visual`` (the visual prior's, no noise), ``truth`` (``truth_proposals``, noise >= 0) or, where
+    ``exported`` allows it, ``exported`` (a file task=export_proposals wrote, ``exported_proposals``).
     Returns (source, noise_std); a bad value raises ValueError naming its option."""
-    if source not in ("visual", "truth"):
-        raise ValueError(f"{source_option}={source!r}: expected 'visual' (the visual prior's proposals) or 'truth' (the recorded particles, a diagnostic)")
+    sources = ("visual", "truth", "exported") if exported else ("visual", "truth")
+    if source not in sources:
+        raise ValueError(f"{source_option}={source!r}: expected 'visual' (the visual prior's proposals), 'truth' (the recorded particles, a diagnostic)"
+                         + (" or 'exported' (the test split's proposals file that task=export_proposals wrote)" if exported else ""))
     noise_std = float(noise_std)
     if noise_std < 0 or (noise_std > 0 and source != "truth"):
         raise ValueError(f"{noise_option}={noise_std}: expected 0, or a std > 0 (metres) with {source_option}=truth")
@@ -118,3 +121,24 @@ def read_proposals(path: str | Path) -> Proposals:
     if out.positions.shape[:3] != out.logits.shape[:3] or out.positions.shape[0] != out.rollout_ids.shape[0]:
         raise DatasetError(f"{path}: 'positions' {tuple(out.positions.shape)}, 'logits' {tuple(out.logits.shape)} and 'rollout_ids' disagree")
     return out
+
+
+def exported_proposals(path: str | Path, rollout_ids: torch.Tensor, frames: int) -> Proposals:
+    """The proposals a file holds for ``rollout_ids`` [R] (in that order), frames [0, ``frames``):
+    what the visual prior that exported them gives over those videos, without that prior (it may
+    be on another machine). Refused, naming the file, where it lacks a rollout or covers fewer
+    frames, or holds proposals that are not the visual prior's."""
+    prop = read_proposals(path)
+    source = str(prop.attrs.get("source", "visual"))
+    if source != "visual":
+        raise DatasetError(f"{path}: {source} proposals (task.source={source}); eval.proposals=exported evaluates the visual prior's")
+    row = {int(i): k for k, i in enumerate(prop.rollout_ids.tolist())}
+    missing = [int(i) for i in rollout_ids.tolist() if int(i) not in row]
+    if missing:
+        raise DatasetError(f"{path}: no proposals for rollout_ids {missing[:5]}{' ...' if len(missing) > 5 else ''} of the test split "
+                           f"({len(row)} exported); re-export with task=export_proposals and the evaluation's eval.max_rollouts")
+    if prop.positions.shape[1] < frames:
+        raise DatasetError(f"{path}: proposals of {prop.positions.shape[1]} frames, the evaluation reads {frames} (start_frame + "
+                           "max(observed, eval.max_observed)); re-export with a larger model.inference.window_span")
+    take = torch.tensor([row[int(i)] for i in rollout_ids.tolist()], dtype=torch.long)
+    return Proposals(prop.positions[take, :frames], prop.logits[take, :frames], prop.rollout_ids[take], prop.attrs)

@@ -33,6 +33,12 @@ def observed_proposals(visual, images: torch.Tensor, start: int, frames: int) ->
     return pos[:, start - first :], logits[:, start - first :]
 
 
+def proposed_frames(observed: int, max_observed: int, n_frames: int, start_frame: int = 0) -> int:
+    """Frames from ``start_frame`` that the evaluation proposes: the observed ones, and the
+    rigidness curve's up to ``max_observed``, within the ``n_frames``-frame videos."""
+    return min(max(observed, max_observed), n_frames - start_frame)
+
+
 def infer_in_chunks(inference, proposals, logits, kinematic, chunk: int, **flags) -> dict:
     """``inference.infer`` on ``chunk`` videos at a time, outputs concatenated along the batch."""
     parts = [inference.infer(proposals[i : i + chunk], logits[i : i + chunk], kinematic, **flags) for i in range(0, len(proposals), chunk)]
@@ -43,11 +49,14 @@ def infer_in_chunks(inference, proposals, logits, kinematic, chunk: int, **flags
 def evaluate_grounding(dynamics, visual, inference, scene, test: Rollouts, ablation, observed: int = 10, n_steps: int = 20,
                        max_observed: int = 20, start_frame: int = 0, seed: int = 0, chunk: int = 8,
                        curve_rollouts: int | None = None, truth_noise_std: float = 0.0,
-                       rigidness_curve: dict | None = None, trace_sources: bool = False) -> GroundingResult:
+                       rigidness_curve: dict | None = None, trace_sources: bool = False,
+                       exported: tuple[torch.Tensor, torch.Tensor] | None = None) -> GroundingResult:
     """Infer from ``observed`` frames of each test video (from ``start_frame``), roll ``n_steps`` on.
     The inference module runs on ``chunk`` videos at a time (bounded memory; same numbers).
     ``visual=None`` replaces the visual prior by the recorded particles plus ``truth_noise_std``
-    metres of Gaussian noise (``truth_proposals``, a diagnostic: no video is read).
+    metres of Gaussian noise (``truth_proposals``, a diagnostic: no video is read). ``exported``:
+    the visual prior's proposals [R, T, N, 3] and logits [R, T, N, M] of frames [0, T) as
+    task=export_proposals wrote them (``exported_proposals``), used instead of ``visual``.
 
     ``ablation`` has booleans rigidness, refinement, params. The rigidness curve is measured for
     T = 1 .. ``max_observed`` when the ablation infers rigidness, on the first ``curve_rollouts``
@@ -70,8 +79,12 @@ def evaluate_grounding(dynamics, visual, inference, scene, test: Rollouts, ablat
         raise ValueError(f"eval.observed={observed} is shorter than the dynamics prior's history of {h} frames")
     if curve_rollouts is not None and curve_rollouts < 1:
         raise ValueError(f"eval.curve_rollouts={curve_rollouts}: expected at least 1 test video, or null for all")
-    t_max = min(max(observed, max_observed), n_frames - start_frame)
-    if visual is None:  # a perfect visual prior, or a noisy one (eval.proposals=truth)
+    t_max = proposed_frames(observed, max_observed, n_frames, start_frame)
+    if exported is not None:  # the visual prior's, exported elsewhere (eval.proposals=exported)
+        if exported[0].shape[1] < start_frame + t_max:
+            raise ValueError(f"eval.proposals=exported: proposals of {exported[0].shape[1]} frames, the evaluation reads {start_frame + t_max}")
+        proposals, logits = (x[:, start_frame : start_frame + t_max] for x in exported)
+    elif visual is None:  # a perfect visual prior, or a noisy one (eval.proposals=truth)
         noise = torch.Generator().manual_seed(seed + 1)
         proposals, logits = truth_proposals(test.positions[:, start_frame : start_frame + t_max], test.instance, int(test.rigid.shape[0]),
                                             truth_noise_std, noise)

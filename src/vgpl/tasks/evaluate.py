@@ -19,12 +19,13 @@ from omegaconf import DictConfig
 from torch.utils.tensorboard import SummaryWriter
 
 from vgpl.checkpoint import load_stage, scene_of
-from vgpl.data.proposals import proposal_source
+from vgpl.data.grounding import proposals_path
+from vgpl.data.proposals import exported_proposals, proposal_source
 from vgpl.data.trajectories import load_split
 from vgpl.eval import figures
 from vgpl.eval.error_breakdown import error_breakdown, rollout_mse_x1e4
 from vgpl.eval.error_sources import error_sources_rows
-from vgpl.eval.grounding import evaluate_grounding
+from vgpl.eval.grounding import evaluate_grounding, proposed_frames
 from vgpl.eval.preview import write_gif
 from vgpl.eval.tables import PER_VIDEO, csv_text, markdown, paired_tables, param_rows, report_markdown, table1_rows, table2_rows
 from vgpl.eval.tensorboard_media import add_gif, rollout_video
@@ -66,25 +67,33 @@ def evaluate(cfg: DictConfig) -> dict:
     if cfg.model.name != "vgpl":
         raise ValueError(f"model.name='{cfg.model.name}': expected vgpl or densephysnet")
     source, noise_std = proposal_source(cfg.eval.get("proposals", "visual"), cfg.eval.get("proposals_noise_std", 0.0),
-                                        "eval.proposals", "eval.proposals_noise_std")
+                                        "eval.proposals", "eval.proposals_noise_std", exported=True)
     scene = scene_of(cfg)
     env, n = scene.name, scene.n_particles
-    truth = source == "truth"
-    paths = {"dynamics": stage_checkpoint(cfg, "dynamics"), "visual": None if truth else stage_checkpoint(cfg, "visual"), "inference": inference_checkpoint(cfg)}
+    truth, by_video = source == "truth", source == "visual"
+    paths = {"dynamics": stage_checkpoint(cfg, "dynamics"), "visual": stage_checkpoint(cfg, "visual") if by_video else None,
+             "proposals": proposals_path(cfg.data.root, env, "test") if source == "exported" else None, "inference": inference_checkpoint(cfg)}
     dynamics, _ = load_stage(paths["dynamics"], DynamicsPrior, env=env, n_particles=n)
-    visual = None if truth else load_stage(paths["visual"], VisualPrior, env=env, n_particles=n)[0]
+    visual = load_stage(paths["visual"], VisualPrior, env=env, n_particles=n)[0] if by_video else None
     inference, _ = load_stage(paths["inference"], InferenceModule, env=env, n_particles=n)
-    test = load_split(cfg.data.root, env, "test", images=not truth, max_rollouts=cfg.eval.get("max_rollouts"))
+    test = load_split(cfg.data.root, env, "test", images=by_video, max_rollouts=cfg.eval.get("max_rollouts"))
     if test.positions.shape[2] != n:
         raise ValueError(f"{cfg.data.root}/{env}/test: {test.positions.shape[2]} particles, the checkpoints expect {n}")
     observed = cfg.model.inference.observed if cfg.eval.get("observed") is None else cfg.eval.observed
+    exported = None
+    if paths["proposals"] is not None:
+        frames = cfg.env.get("start_frame", 0) + proposed_frames(observed, cfg.eval.get("max_observed", 20), test.positions.shape[1], cfg.env.get("start_frame", 0))
+        prop = exported_proposals(paths["proposals"], test.rollout_ids, frames)
+        if prop.positions.shape[2] != n:
+            raise ValueError(f"{paths['proposals']}: proposals of {prop.positions.shape[2]} particles, the checkpoints expect {n}")
+        exported = (prop.positions, prop.logits)
     measured_on = curve_fingerprint(cfg, paths, source, noise_std, int(test.positions.shape[0]), observed) if cfg.ablation.rigidness else None
     reused = cfg.eval.get("rigidness_curve_from") if cfg.ablation.rigidness else None
     result = evaluate_grounding(dynamics, visual, inference, scene, test, cfg.ablation, observed, cfg.eval.n_steps,
                                 cfg.eval.get("max_observed", 20), cfg.env.get("start_frame", 0), cfg.seed,
                                 curve_rollouts=cfg.eval.get("curve_rollouts"), truth_noise_std=noise_std,
                                 rigidness_curve=None if reused is None else reused_rigidness_curve(reused, measured_on),
-                                trace_sources=bool(cfg.eval.get("error_sources", False)))
+                                trace_sources=bool(cfg.eval.get("error_sources", False)), exported=exported)
     record = {"env": env, "method": "vgpl", "ablation": cfg.ablation.name, "n_test": int(test.positions.shape[0]),
               "observed": observed, "proposals": source, "proposals_noise_std": noise_std,
               "checkpoints": {k: str(v) for k, v in paths.items() if v is not None}, **result.metrics, "rigidness_curve": result.rigidness_curve}
@@ -105,6 +114,8 @@ def evaluate(cfg: DictConfig) -> dict:
     (out / "params.csv").write_text(csv_text(*param_rows(names, test.params, result.params, test.rollout_ids, {f"future_mse_x1e4@{last}": errors})))
     notes = (f"\nProposals: the recorded particles + N(0, {noise_std:g}^2) m (eval.proposals=truth), not the visual prior: a diagnostic.\n"
              if truth else "")
+    if exported is not None:
+        notes += f"\nProposals: the visual prior's, read from {paths['proposals']} (eval.proposals=exported; visual checkpoint {prop.attrs.get('visual_checkpoint')}).\n"
     if result.sources:
         header, rows = error_sources_rows(result.sources)
         (out / "error_sources.csv").write_text(csv_text(header, rows))

@@ -104,6 +104,8 @@ def export_proposals(cfg: DictConfig) -> dict:
     if source == "visual":
         ckpt = stage_checkpoint(cfg, "visual")
         model, _ = load_stage(ckpt, VisualPrior, env=scene.name, n_particles=scene.n_particles)
+        if torch.cuda.is_available():  # the windows are independent: propose them on the GPU where there is one
+            model = model.cuda()
     paths = {}
     for i, (split, limit) in enumerate((("train", cfg.model.inference.get("max_rollouts")), ("test", cfg.eval.get("max_rollouts")))):
         if source == "visual":
