@@ -126,7 +126,7 @@ def test_evaluation_with_truth_proposals_reads_no_video_or_visual_prior_and_says
     noisy = evaluate(config(tmp, "task=evaluate", "eval.proposals=truth", "eval.proposals_noise_std=0.01", nowhere, f"paths.output_dir={tmp_path}/noisy"))
     assert noisy["refine_mse_x1e4_before"] == pytest.approx(1.0, rel=0.1)  # (0.01 m)^2 x 1e4
     assert "eval.proposals=truth" in (tmp_path / "noisy/report.md").read_text()
-    with pytest.raises(ValueError, match="eval.proposals='video': expected 'visual'"):
+    with pytest.raises(ValueError, match="eval.proposals='video': expected 'visual'.*'truth'.*or 'exported'"):
         evaluate(config(tmp, "task=evaluate", "eval.proposals=video", f"paths.output_dir={tmp_path}/bad"))
     with pytest.raises(ValueError, match="eval.proposals_noise_std=0.01: .*with eval.proposals=truth"):
         evaluate(config(tmp, "task=evaluate", "eval.proposals_noise_std=0.01", f"paths.output_dir={tmp_path}/bad"))

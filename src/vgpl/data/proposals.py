@@ -65,8 +65,10 @@ def proposal_source(source: str, noise_std: float, source_option: str, noise_opt
     Returns (source, noise_std); a bad value raises ValueError naming its option."""
     sources = ("visual", "truth", "exported") if exported else ("visual", "truth")
     if source not in sources:
-        raise ValueError(f"{source_option}={source!r}: expected 'visual' (the visual prior's proposals), 'truth' (the recorded particles, a diagnostic)"
-                         + (" or 'exported' (the test split's proposals file that task=export_proposals wrote)" if exported else ""))
+        choices = ["'visual' (the visual prior's proposals)", "'truth' (the recorded particles, a diagnostic)"]
+        if exported:
+            choices.append("'exported' (the test split's proposals file that task=export_proposals wrote)")
+        raise ValueError(f"{source_option}={source!r}: expected {', '.join(choices[:-1])} or {choices[-1]}")
     noise_std = float(noise_std)
     if noise_std < 0 or (noise_std > 0 and source != "truth"):
         raise ValueError(f"{noise_option}={noise_std}: expected 0, or a std > 0 (metres) with {source_option}=truth")
