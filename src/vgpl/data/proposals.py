@@ -63,11 +63,12 @@ def proposal_source(source: str, noise_std: float, source_option: str, noise_opt
     ``visual`` (the visual prior's, no noise), ``truth`` (``truth_proposals``, noise >= 0) or, where
     ``exported`` allows it, ``exported`` (a file task=export_proposals wrote, ``exported_proposals``).
     Returns (source, noise_std); a bad value raises ValueError naming its option."""
-    sources = ("visual", "truth", "exported") if exported else ("visual", "truth")
+    sources = {"visual": "the visual prior's proposals", "truth": "the recorded particles, a diagnostic",
+               "exported": "the test split's proposals file that task=export_proposals wrote"}
+    if not exported:
+        del sources["exported"]
     if source not in sources:
-        choices = ["'visual' (the visual prior's proposals)", "'truth' (the recorded particles, a diagnostic)"]
-        if exported:
-            choices.append("'exported' (the test split's proposals file that task=export_proposals wrote)")
+        choices = [f"'{name}' ({what})" for name, what in sources.items()]
         raise ValueError(f"{source_option}={source!r}: expected {', '.join(choices[:-1])} or {choices[-1]}")
     noise_std = float(noise_std)
     if noise_std < 0 or (noise_std > 0 and source != "truth"):

@@ -82,7 +82,8 @@ def evaluate(cfg: DictConfig) -> dict:
     observed = cfg.model.inference.observed if cfg.eval.get("observed") is None else cfg.eval.observed
     exported = None
     if paths["proposals"] is not None:
-        frames = cfg.env.get("start_frame", 0) + proposed_frames(observed, cfg.eval.get("max_observed", 20), test.positions.shape[1], cfg.env.get("start_frame", 0))
+        start = cfg.env.get("start_frame", 0)
+        frames = start + proposed_frames(observed, cfg.eval.get("max_observed", 20), test.positions.shape[1], start)
         prop = exported_proposals(paths["proposals"], test.rollout_ids, frames)
         if prop.positions.shape[2] != n:
             raise ValueError(f"{paths['proposals']}: proposals of {prop.positions.shape[2]} particles, the checkpoints expect {n}")
