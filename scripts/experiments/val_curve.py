@@ -46,7 +46,7 @@ def main() -> None:
     print(f"| step | " + " | ".join(labels) + " |")
     print("|---|" + "---|" * len(labels))
     for step in sorted(set().union(*curves)):
-        values = [f"{c[step]:.3f}" if step in c else "" for c in curves]
+        values = [f"{c[step]:.4g}" if step in c else "" for c in curves]
         print(f"| {step} | " + " | ".join(values) + " |")
 
 
