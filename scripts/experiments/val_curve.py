@@ -1,6 +1,6 @@
 """One logged scalar against the training step, read from runs' TensorBoard event files (all of a
 run's files together, so a run resumed in several stops reads as one curve): a Markdown table,
-step by run. Session 39: the inference module's validation gravity MAE from 3,000 to 6,000 steps.
+step by run. Session 39: the inference module's validation gravity MAE from 3,000 to 12,000 steps.
 
 Usage: python scripts/experiments/val_curve.py [--tag val/param_mae_pct] LABEL=TB_DIR [LABEL=TB_DIR ...]
        (TB_DIR: a checkpoint folder's tensorboard/, e.g. checkpoints/<run>/rigid_fall/inference/tensorboard)
@@ -15,20 +15,17 @@ from tensorboard.backend.event_processing.event_accumulator import EventAccumula
 
 
 def scalar_curve(folder: Path, tag: str) -> dict[int, float]:
-    """step -> value of ``tag`` over every event file under ``folder``; a later file's value wins
-    at a step logged twice (a resumed run repeats the step it resumed from)."""
-    files = sorted(folder.rglob("events.out.tfevents.*"), key=lambda p: p.stat().st_mtime)
+    """step -> value of ``tag`` in ``folder``'s event files. TensorBoard's own reader of a folder
+    reads its files in name order (the name holds the file's creation time, which a copied run
+    keeps and its mtime does not) and drops the steps a resumed run logs again."""
+    files = list(folder.glob("events.out.tfevents.*"))
     if not files:
         raise SystemExit(f"{folder}: no TensorBoard event files (expected a run's tensorboard/ folder)")
-    curve: dict[int, float] = {}
-    for path in files:
-        events = EventAccumulator(str(path), size_guidance={"scalars": 0})
-        events.Reload()
-        if tag in events.Tags()["scalars"]:
-            curve.update({e.step: e.value for e in events.Scalars(tag)})
-    if not curve:
+    events = EventAccumulator(str(folder), size_guidance={"scalars": 0})
+    events.Reload()
+    if tag not in events.Tags()["scalars"]:
         raise SystemExit(f"{folder}: no scalar '{tag}' in {len(files)} event files")
-    return curve
+    return {e.step: e.value for e in events.Scalars(tag)}
 
 
 def main() -> None:
