@@ -69,6 +69,29 @@ def test_a_prior_blind_to_p_has_a_flat_loss_and_no_oracle():
     assert out["grid_param_mae_pct"].item() == pytest.approx(10.0, abs=1e-4)
 
 
+def test_refining_around_each_scenes_best_resolves_like_a_four_times_finer_grid():
+    """9 coarse values (step 0.25 normalised) and 9 more within one step of each scene's best: the
+    33-point lattice (step 0.0625), also at the clamped ends of the range."""
+    params = torch.tensor([[-10.9], [-5.2], [-14.9]])  # normalised -0.18, 0.96, -0.98
+    positions, planes, kinematic = _scenes(params)
+    coarse = oracle_param_sweep(Falling(), positions, None, None, params, planes, kinematic, n_steps=8, grid=9)
+    fine = oracle_param_sweep(Falling(), positions, None, None, params, planes, kinematic, n_steps=8, grid=9, refine=9)
+    lattice = torch.tensor([[-0.1875], [0.9375], [-1.0]])  # the nearest values of the 33-point lattice
+    assert Falling().normalise_params(fine["oracle_params"]) == pytest.approx(lattice, abs=1e-5)
+    truth = Falling().normalise_params(params)
+    expected = ((lattice - truth).abs() * 50).mean().item()  # 0.0075, 0.0225, 0.02 normalised: 0.83%
+    assert fine["oracle_param_mae_pct"].item() == pytest.approx(expected, abs=1e-3)
+    assert fine["grid_param_mae_pct"].item() == pytest.approx(expected, abs=1e-3)  # a perfect prior: the lattice's own error
+    assert coarse["oracle_param_mae_pct"].item() == pytest.approx(((torch.tensor([[-0.25], [1.0], [-1.0]]) - truth).abs() * 50).mean().item(), abs=1e-3)
+    assert torch.equal(fine["loss_curve"], coarse["loss_curve"])  # the curve stays the coarse grid's
+
+
+@pytest.mark.parametrize("refine", [1, -2])
+def test_a_refinement_of_one_value_is_refused(refine):
+    with pytest.raises(ValueError, match=f"refine={refine}, expected 0"):
+        oracle_param_sweep(Falling(), torch.zeros(1, 3, 2, 3), None, None, torch.tensor([[-10.0]]), torch.zeros(1, 3, 0, 4), torch.zeros(2, dtype=torch.bool), 1, refine=refine)
+
+
 def test_grid_of_one_value_is_refused():
     with pytest.raises(ValueError, match="grid=1"):
         oracle_param_sweep(Falling(), torch.zeros(1, 3, 2, 3), None, None, torch.tensor([[-10.0]]), torch.zeros(1, 3, 0, 4), torch.zeros(2, dtype=torch.bool), 1, grid=1)

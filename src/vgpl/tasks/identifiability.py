@@ -46,10 +46,11 @@ def true_window(scene: Scene, test: Rollouts, start: int, n_frames: int, n: int)
 
 
 def evaluate_identifiability(model: DynamicsPrior, scene: Scene, test: Rollouts, root: str, observed: int, horizon: int, grid: int,
-                             max_rollouts: int | None = None, start_frame: int = 0, history: str = "truth") -> dict:
+                             max_rollouts: int | None = None, start_frame: int = 0, history: str = "truth", refine: int = 0) -> dict:
     """``oracle_param_sweep`` on the first ``max_rollouts`` rollouts of the test split ``test``
     (read from ``root``), over the inference module's training window: ``observed`` frames from
-    ``start_frame`` on plus ``horizon`` more, rolled from the first H. ``history="proposals"``
+    ``start_frame`` on plus ``horizon`` more, rolled from the first H, over ``grid`` values and then
+    ``refine`` around each scene's best. ``history="proposals"``
     starts the rollouts from the VisualPrior's exported proposals instead of the true positions
     (what an inference module without refinement would see)."""
     if history not in ("truth", "proposals"):
@@ -67,19 +68,19 @@ def evaluate_identifiability(model: DynamicsPrior, scene: Scene, test: Rollouts,
             raise DatasetError(f"{path}: proposals do not cover the first {n} test rollouts' frames {start_frame}..{start_frame + h - 1}; re-export with task=export_proposals")
         positions[:, :h] = proposals.positions[:n, start_frame : start_frame + h]
     model.eval()
-    return oracle_param_sweep(model, positions, grouping, rigidness, params, planes, kinematic, n_frames - h, grid) | {"truth": params}
+    return oracle_param_sweep(model, positions, grouping, rigidness, params, planes, kinematic, n_frames - h, grid, refine) | {"truth": params}
 
 
 def sweep_metrics(model: DynamicsPrior, scene: Scene, test: Rollouts, cfg: DictConfig, train_cfg: DictConfig, out: Path, grid: int,
-                  max_rollouts: int | None, history: str = "truth") -> dict:
+                  max_rollouts: int | None, history: str = "truth", refine: int = 0) -> dict:
     """Run the sweep over ``cfg.model.inference``'s window and return its flat metrics
     (``oracle_param_mae_pct/<name>``, ``grid_param_mae_pct/<name>``, ``midpoint_param_mae_pct/<name>``,
     ``rollout_l1_over_grid/<name>``);
     the scatter of oracle against truth goes to ``out/oracle_<name>.png``."""
     inf = cfg.model.inference
     sweep = evaluate_identifiability(model, scene, test, cfg.data.root, inf.observed, inf.net.horizon, grid, max_rollouts,
-                                     train_cfg.env.get("start_frame", 0), history)
-    result: dict = {"param_sweep_history": history}
+                                     train_cfg.env.get("start_frame", 0), history, refine)
+    result: dict = {"param_sweep_history": history, "param_grid": grid, "param_grid_refine": refine}
     for j, name in enumerate(scene.param_names):
         result[f"oracle_param_mae_pct/{name}"] = float(sweep["oracle_param_mae_pct"][j])
         result[f"grid_param_mae_pct/{name}"] = float(sweep["grid_param_mae_pct"][j])
@@ -139,10 +140,12 @@ def unidentified(metrics: dict, names, max_ratio: float) -> dict[str, tuple[floa
 def identifiability_summary(result: dict) -> str:
     """One Markdown line per parameter for the pipeline's report."""
     lines = [f"\nIdentifiability of P through the dynamics prior (oracle argmin of its rollout L1, {result['checkpoint']}):\n"]
+    refine = result.get("param_grid_refine", 0)
+    grid = f"{result['param_grid']}-point grid" + (f", refined by {refine} values around each scene's best" if refine else "")
     for name in result["param_names"]:
         lines.append(f"- {name}: oracle {result[f'oracle_param_mae_pct/{name}']:.1f}% against the range midpoint's "
-                     f"{result[f'midpoint_param_mae_pct/{name}']:.1f}% (a perfect prior on this {len(result[f'rollout_l1_over_grid/{name}'])}-point "
-                     f"grid: {result[f'grid_param_mae_pct/{name}']:.1f}%; task.identifiability.grid refines it)")
+                     f"{result[f'midpoint_param_mae_pct/{name}']:.1f}% (a perfect prior on this {grid}: "
+                     f"{result[f'grid_param_mae_pct/{name}']:.1f}%; task.identifiability.grid and .refine set it)")
     return "\n".join(lines) + "\n"
 
 
@@ -162,7 +165,7 @@ def check_identifiability(cfg: DictConfig) -> dict:
     out = Path(cfg.paths.output_dir)
     out.mkdir(parents=True, exist_ok=True)
     test = load_split(cfg.data.root, scene.name, "test", max_rollouts=spec.get("max_rollouts"))  # only the videos swept
-    metrics = sweep_metrics(model, scene, test, cfg, train_cfg, out, int(spec.grid), spec.get("max_rollouts"))
+    metrics = sweep_metrics(model, scene, test, cfg, train_cfg, out, int(spec.grid), spec.get("max_rollouts"), refine=int(spec.get("refine", 0)))
     failed = unidentified(metrics, scene.param_names, float(spec.max_ratio))
     result = {"env": scene.name, "checkpoint": str(path), "param_names": list(scene.param_names), **metrics, "max_ratio": float(spec.max_ratio), "identified": not failed}
     (out / "identifiability.json").write_text(json.dumps(result, indent=1))

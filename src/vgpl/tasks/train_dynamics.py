@@ -119,7 +119,8 @@ def evaluate_dynamics(cfg: DictConfig) -> dict:
     write_gif(rollout_video(scene.camera, scene.instance, truth[0], pred[0]), out / "rollout_truth_vs_prediction.gif", fps=15)
     grid = int(cfg.task.get("param_grid", 0))
     if grid > 0:
-        result |= sweep_metrics(model, scene, test, cfg, train_cfg, out, grid, cfg.eval.get("max_rollouts"), cfg.task.get("param_sweep_history", "truth"))
+        result |= sweep_metrics(model, scene, test, cfg, train_cfg, out, grid, cfg.eval.get("max_rollouts"), cfg.task.get("param_sweep_history", "truth"),
+                                int(cfg.task.get("param_grid_refine", 0)))
         log.info("identifiability: %s", {k: v for k, v in result.items() if "param_mae" in k})
         write_metrics()
     if starts:
