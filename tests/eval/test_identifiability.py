@@ -82,7 +82,12 @@ def test_refining_around_each_scenes_best_resolves_like_a_four_times_finer_grid(
     expected = ((lattice - truth).abs() * 50).mean().item()  # 0.0075, 0.0225, 0.02 normalised: 0.83%
     assert fine["oracle_param_mae_pct"].item() == pytest.approx(expected, abs=1e-3)
     assert fine["grid_param_mae_pct"].item() == pytest.approx(expected, abs=1e-3)  # a perfect prior: the lattice's own error
-    assert coarse["oracle_param_mae_pct"].item() == pytest.approx(((torch.tensor([[-0.25], [1.0], [-1.0]]) - truth).abs() * 50).mean().item(), abs=1e-3)
+    coarse_values = torch.tensor([[-0.25], [1.0], [-1.0]])
+    assert coarse["oracle_param_mae_pct"].item() == pytest.approx(((coarse_values - truth).abs() * 50).mean().item(), abs=1e-3)
+    # signed, normalised: -0.07, +0.04, -0.02 on the grid; -0.0075, -0.0225, -0.02 refined: both -0.05 / 3, -0.83%
+    assert coarse["oracle_param_bias_pct"].item() == pytest.approx(((coarse_values - truth) * 50).mean().item(), abs=1e-3)
+    assert fine["oracle_param_bias_pct"].item() == pytest.approx(((lattice - truth) * 50).mean().item(), abs=1e-3)
+    assert fine["oracle_param_bias_pct"].item() == pytest.approx(-0.8333, abs=1e-3)
     assert torch.equal(fine["loss_curve"], coarse["loss_curve"])  # the curve stays the coarse grid's
 
 

@@ -310,6 +310,8 @@ def test_identifiability_gate_writes_its_sweep_and_warns_or_stops(trained, caplo
     # the argmin is a value of the refined lattice, where a perfect prior finds the nearest to the truth
     assert 0 <= written["grid_param_mae_pct/gravity"] <= written["oracle_param_mae_pct/gravity"] + 1e-6
     assert written["param_grid"] == 5 and written["param_grid_refine"] == 9  # conf/task/pipeline.yaml's refinement
+    assert abs(written["oracle_param_bias_pct/gravity"]) <= written["oracle_param_mae_pct/gravity"] + 1e-6
+    assert f"(mean signed error {written['oracle_param_bias_pct/gravity']:+.1f})" in identifiability_summary(written)
     assert (f"(a perfect prior on this 5-point grid, refined by 9 values around each scene's best: {written['grid_param_mae_pct/gravity']:.1f}%"
             in identifiability_summary(written))
     # the same numbers as task=evaluate_dynamics over the same videos and grid

@@ -74,7 +74,7 @@ def evaluate_identifiability(model: DynamicsPrior, scene: Scene, test: Rollouts,
 def sweep_metrics(model: DynamicsPrior, scene: Scene, test: Rollouts, cfg: DictConfig, train_cfg: DictConfig, out: Path, grid: int,
                   max_rollouts: int | None, history: str = "truth", refine: int = 0) -> dict:
     """Run the sweep over ``cfg.model.inference``'s window and return its flat metrics
-    (``oracle_param_mae_pct/<name>``, ``grid_param_mae_pct/<name>``, ``midpoint_param_mae_pct/<name>``,
+    (``oracle_param_mae_pct/<name>``, ``oracle_param_bias_pct/<name>``, ``grid_param_mae_pct/<name>``, ``midpoint_param_mae_pct/<name>``,
     ``rollout_l1_over_grid/<name>``);
     the scatter of oracle against truth goes to ``out/oracle_<name>.png``."""
     inf = cfg.model.inference
@@ -83,6 +83,7 @@ def sweep_metrics(model: DynamicsPrior, scene: Scene, test: Rollouts, cfg: DictC
     result: dict = {"param_sweep_history": history, "param_grid": grid, "param_grid_refine": refine}
     for j, name in enumerate(scene.param_names):
         result[f"oracle_param_mae_pct/{name}"] = float(sweep["oracle_param_mae_pct"][j])
+        result[f"oracle_param_bias_pct/{name}"] = float(sweep["oracle_param_bias_pct"][j])
         result[f"grid_param_mae_pct/{name}"] = float(sweep["grid_param_mae_pct"][j])
         result[f"midpoint_param_mae_pct/{name}"] = float(sweep["midpoint_param_mae_pct"][j])
         result[f"rollout_l1_over_grid/{name}"] = [round(float(v), 5) for v in sweep["loss_curve"][j]]
@@ -143,7 +144,8 @@ def identifiability_summary(result: dict) -> str:
     refine = result.get("param_grid_refine", 0)
     grid = f"{result['param_grid']}-point grid" + (f", refined by {refine} values around each scene's best" if refine else "")
     for name in result["param_names"]:
-        lines.append(f"- {name}: oracle {result[f'oracle_param_mae_pct/{name}']:.1f}% against the range midpoint's "
+        lines.append(f"- {name}: oracle {result[f'oracle_param_mae_pct/{name}']:.1f}% (mean signed error "
+                     f"{result[f'oracle_param_bias_pct/{name}']:+.1f}) against the range midpoint's "
                      f"{result[f'midpoint_param_mae_pct/{name}']:.1f}% (a perfect prior on this {grid}: "
                      f"{result[f'grid_param_mae_pct/{name}']:.1f}%; task.identifiability.grid and .refine set it)")
     return "\n".join(lines) + "\n"
