@@ -93,7 +93,7 @@ def test_refining_around_each_scenes_best_resolves_like_a_four_times_finer_grid(
 
 @pytest.mark.parametrize("refine", [1, -2])
 def test_a_refinement_of_one_value_is_refused(refine):
-    with pytest.raises(ValueError, match=f"refine={refine}, expected 0"):
+    with pytest.raises(ValueError, match=rf"refine={refine} \(task.param_grid_refine or task.identifiability.refine\), expected 0"):
         oracle_param_sweep(Falling(), torch.zeros(1, 3, 2, 3), None, None, torch.tensor([[-10.0]]), torch.zeros(1, 3, 0, 4), torch.zeros(2, dtype=torch.bool), 1, refine=refine)
 
 

@@ -53,7 +53,8 @@ def oracle_param_sweep(model, positions, grouping, rigidness, params, planes, ki
     if grid < 2:
         raise ValueError(f"oracle_param_sweep: grid={grid}, expected at least 2 values")
     if refine == 1 or refine < 0:
-        raise ValueError(f"oracle_param_sweep: refine={refine}, expected 0 (coarse grid only) or at least 2 values")
+        raise ValueError(f"oracle_param_sweep: refine={refine} (task.param_grid_refine or task.identifiability.refine), "
+                         "expected 0 (the grid alone) or at least 2 values")
     values = torch.linspace(-1.0, 1.0, grid)
     step = 2.0 / (grid - 1)
     offsets = torch.linspace(-step, step, refine) if refine else None
