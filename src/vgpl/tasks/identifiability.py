@@ -141,7 +141,7 @@ def unidentified(metrics: dict, names, max_ratio: float) -> dict[str, tuple[floa
 def identifiability_summary(result: dict) -> str:
     """One Markdown line per parameter for the pipeline's report."""
     lines = [f"\nIdentifiability of P through the dynamics prior (oracle argmin of its rollout L1, {result['checkpoint']}):\n"]
-    refine = result.get("param_grid_refine", 0)
+    refine = result["param_grid_refine"]
     grid = f"{result['param_grid']}-point grid" + (f", refined by {refine} values around each scene's best" if refine else "")
     for name in result["param_names"]:
         lines.append(f"- {name}: oracle {result[f'oracle_param_mae_pct/{name}']:.1f}% (mean signed error "
