@@ -17,6 +17,16 @@ on its own predictions, gradients through every step, and averages the position 
 (in units of the displacement std; k = 1 is the usual one-step loss, exactly). A prior trained
 one step at a time can drift over the inference module's 15-frame window in a way that depends
 on P (MassRope, session 7: a stiffer rope damps the drift), which a multi-step loss penalises.
+
+The history noise (``noise``, learning_to_simulate's) makes rollouts robust but biases the
+one-step prediction: from a noisy history the best guess of a fast velocity is a smaller one, so a
+prior trained with noise to the end moves too little. Session 36's RigidFall prior reproduces 0.96
+of the true free-fall acceleration (0.94 by frame 13), and its rollout fits a gravity about 2.5% of
+the range too strong, the bias of every inference module trained through it. With
+``noise_free_steps`` K > 0 the last K of trainer.max_steps (or the same share of a
+trainer.max_time, whichever comes first, as ``lr_anneal_steps``) train without it; a 10-minute
+noise-free fine-tune of that prior (10k steps) read 1.006 and halved the oracle's error
+(docs/experiments.md: session 41).
 """
 
 from __future__ import annotations
@@ -28,7 +38,7 @@ from torch_geometric.nn import MLP
 
 from vgpl.eval.rollout import rollout
 from vgpl.graph import edge_features, max_degree, plane_ghosts, radius_graph
-from vgpl.models.step_learning_rate import set_learning_rate
+from vgpl.models.step_learning_rate import annealed_fraction, set_learning_rate, training_clock
 from vgpl.nn.normalisation import NormalisationBuffers
 from vgpl.nn.propagation import EdgeEncoder, Propagator
 from vgpl.nn.rigid import momentum_projection, quaternion_to_matrix, rigid_displacement, soft_centroids
@@ -62,12 +72,15 @@ class DynamicsPrior(NormalisationBuffers, L.LightningModule):
         action_lookahead: bool = False,
         rollout_steps: int = 1,
         rigid_head: str = "pooled",
+        noise_free_steps: int = 0,
     ) -> None:
         super().__init__()
         if rigid_head not in ("pooled", "projected"):
             raise ValueError(f"DynamicsPrior: rigid_head={rigid_head!r} (model.dynamics.net.rigid_head), expected 'pooled' (the paper) or 'projected'")
         if rollout_steps < 1:
             raise ValueError(f"DynamicsPrior: rollout_steps={rollout_steps}, expected at least 1 (steps rolled in the training loss)")
+        if noise_free_steps < 0:
+            raise ValueError(f"DynamicsPrior: noise_free_steps={noise_free_steps} (model.dynamics.net.noise_free_steps), expected >= 0 (0: noise to the end)")
         self.save_hyperparameters()
         n_params = len(param_low)
         self.register_normalisation(param_low, param_high)
@@ -200,7 +213,7 @@ class DynamicsPrior(NormalisationBuffers, L.LightningModule):
             raise ValueError(f"DynamicsPrior(rollout_steps={k}): windows of {positions.shape[1]} frames, expected history {h} + {k}")
         history = positions[:, :h]
         rigidness = batch["rigidness"]
-        if noise and self.hparams.noise > 0:
+        if noise and self.hparams.noise > 0 and not self.in_noise_free_finish():
             history = add_history_noise(history, self.hparams.noise * self.disp_std, ~kinematic)
         if noise and self.hparams.rigid_dropout > 0:
             # a rigid body is also a (stiff) non-rigid one: teaching the per-particle head rigid motion
@@ -215,6 +228,15 @@ class DynamicsPrior(NormalisationBuffers, L.LightningModule):
         pred = rollout(self, start, batch["grouping"], rigidness, batch["params"], batch["planes"][:, : h + k], kinematic, k)
         error = ((pred - positions[:, h : h + k]) / self.disp_std).abs()[:, :, ~kinematic]  # [B, k, movable, 3]
         return error.mean(), error[:, 0].mean()
+
+    def in_noise_free_finish(self) -> bool:
+        """Whether this training step is in the last ``noise_free_steps`` (by step or by the clock)."""
+        k = self.hparams.get("noise_free_steps", 0)
+        if k <= 0:
+            return False
+        # the step about to be taken is global_step + 1 of max_steps: steps max_steps - K .. max_steps - 1 are the last K
+        return annealed_fraction(self.global_step + 1, self.trainer.max_steps, k, *training_clock(self.trainer), stage="dynamics",
+                                 option="noise_free_steps") < 1.0
 
     def training_step(self, batch, batch_idx):
         loss, first = self._loss(batch, noise=True)

@@ -32,7 +32,7 @@ def set_learning_rate(module: L.LightningModule, lr: float | Sequence[float]) ->
 
 
 def annealed_fraction(step: int, max_steps: int, anneal_steps: int, elapsed_s: float | None = None,
-                      budget_s: float | None = None, stage: str = "visual") -> float:
+                      budget_s: float | None = None, stage: str = "visual", option: str = "lr_anneal_steps") -> float:
     """1 before step ``max_steps - anneal_steps``, then 0.5 (1 + cos(pi x progress)), reaching 0
     at ``max_steps`` (the step after the last one taken).
 
@@ -40,9 +40,10 @@ def annealed_fraction(step: int, max_steps: int, anneal_steps: int, elapsed_s: f
     anneal also spans the same share ``anneal_steps / max_steps`` of the budget's end, and the rate
     follows whichever of the two schedules is further on: a fit the clock stops before max_steps
     still ends at zero, and one that reaches max_steps first anneals by step as before. ``stage``
-    (visual, inference) names the config key in the error for a fit without max_steps."""
+    (visual, inference) and ``option`` (the net's key that asked for the schedule) name the config
+    key in the error for a fit without max_steps."""
     if max_steps <= 0:
-        raise ValueError(f"model.{stage}.net.lr_anneal_steps={anneal_steps} needs a finite model.{stage}.trainer.max_steps (got {max_steps})")
+        raise ValueError(f"model.{stage}.net.{option}={anneal_steps} needs a finite model.{stage}.trainer.max_steps (got {max_steps})")
     progress = (step - (max_steps - anneal_steps)) / anneal_steps
     if budget_s is not None and elapsed_s is not None and budget_s > 0:
         share = min(anneal_steps / max_steps, 1.0)
