@@ -177,6 +177,27 @@ def test_checkpoint_of_another_env_or_particle_count_is_refused(tiny, tmp_path):
         evaluate(config(tmp, "task=evaluate", "+env.scene.n_cubes=2", f"paths.output_dir={tmp_path}"))
     with pytest.raises(CheckpointError, match="nope.ckpt: no such checkpoint"):
         evaluate(config(tmp, "task=evaluate", f"ckpt.inference={tmp_path}/nope.ckpt", f"paths.output_dir={tmp_path}"))
+    with pytest.raises(CheckpointError, match="nope_no_rigidness.ckpt: no such checkpoint"):  # its own key, not passed over for a default path
+        evaluate(config(tmp, "task=evaluate", "ablation=no_rigidness", f"ckpt.inference_no_rigidness={tmp_path}/nope_no_rigidness.ckpt",
+                        f"paths.output_dir={tmp_path}"))
+
+
+def test_evaluating_a_module_through_another_prior_than_its_own_is_named(caplog):
+    """The module's training config names its prior (ckpt.dynamics, else <paths.ckpt_dir>/dynamics/last.ckpt)."""
+    from omegaconf import OmegaConf
+
+    from vgpl.tasks.evaluate import warn_other_prior
+
+    by_default = OmegaConf.create({"paths": {"ckpt_dir": "ck/rigid_fall"}, "ckpt": {"dynamics": None}})
+    given = OmegaConf.create({"paths": {"ckpt_dir": "ck/rigid_fall"}, "ckpt": {"dynamics": "other/dynamics/last.ckpt"}})
+    assert warn_other_prior(Path("m.ckpt"), by_default, Path("ck/rigid_fall/dynamics/last.ckpt")) is None
+    assert warn_other_prior(Path("m.ckpt"), given, Path("other/dynamics/last.ckpt")) is None
+    with caplog.at_level("WARNING"):
+        message = warn_other_prior(Path("m.ckpt"), given, Path("ck/rigid_fall/dynamics/last.ckpt"))
+    assert message == ("m.ckpt: trained through the dynamics prior other/dynamics/last.ckpt, evaluated through ck/rigid_fall/dynamics/last.ckpt; "
+                       "pass ckpt.dynamics=<its prior> unless the swap is the experiment")
+    assert message in caplog.text
+    assert warn_other_prior(Path("m.ckpt"), OmegaConf.create({}), Path("x.ckpt")) is None  # a config that does not say
 
 
 def test_inference_init_from_starts_a_fine_tune_from_the_checkpoints_weights(tiny, tmp_path):

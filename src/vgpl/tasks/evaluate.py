@@ -32,7 +32,7 @@ from vgpl.eval.tensorboard_media import add_gif, rollout_video
 from vgpl.models.dynamics_prior import DynamicsPrior
 from vgpl.models.inference import InferenceModule
 from vgpl.models.visual_prior import VisualPrior
-from vgpl.tasks.stage import setup_run, stage_checkpoint, stage_dir
+from vgpl.tasks.stage import setup_run, stage_checkpoint
 from vgpl.tasks.train_inference import inference_stage
 
 log = logging.getLogger(__name__)
@@ -53,9 +53,25 @@ def write_tables(records: list[dict], out: Path, notes: str = "") -> str:
 
 
 def inference_checkpoint(cfg: DictConfig) -> Path:
-    stage = inference_stage(cfg.ablation)
-    given = (cfg.get("ckpt") or {}).get("inference")
-    return Path(given) if given and stage == "inference" else stage_dir(cfg, stage) / "last.ckpt"
+    """``ckpt.inference`` (the full module, which no_refinement and no_params switch at evaluation
+    time), or ``ckpt.inference_no_rigidness`` under ablation=no_rigidness (its own module); unset,
+    the stage's last.ckpt under paths.ckpt_dir. (Before session 41 ``ckpt.inference`` was silently
+    passed over under no_rigidness for the default path, which held another prior's module.)"""
+    return stage_checkpoint(cfg, inference_stage(cfg.ablation))
+
+
+def warn_other_prior(inference_path: Path, inference_cfg: DictConfig, dynamics_path: Path) -> str | None:
+    """The warning (also logged) when the inference module at ``inference_path`` was trained through
+    another dynamics prior than ``dynamics_path``: its P is fitted to that prior's rollout (session 41:
+    a module from a biased prior read gravity 33% evaluated through an unbiased one); None when they
+    agree or its config does not say."""
+    trained = stage_checkpoint(inference_cfg, "dynamics") if inference_cfg.get("paths") else None
+    if trained is None or Path(trained).resolve() == Path(dynamics_path).resolve():
+        return None
+    message = (f"{inference_path}: trained through the dynamics prior {trained}, evaluated through {dynamics_path}; "
+               "pass ckpt.dynamics=<its prior> unless the swap is the experiment")
+    log.warning(message)
+    return message
 
 
 def evaluate(cfg: DictConfig) -> dict:
@@ -75,7 +91,8 @@ def evaluate(cfg: DictConfig) -> dict:
              "proposals": proposals_path(cfg.data.root, env, "test") if source == "exported" else None, "inference": inference_checkpoint(cfg)}
     dynamics, _ = load_stage(paths["dynamics"], DynamicsPrior, env=env, n_particles=n)
     visual = load_stage(paths["visual"], VisualPrior, env=env, n_particles=n)[0] if by_video else None
-    inference, _ = load_stage(paths["inference"], InferenceModule, env=env, n_particles=n)
+    inference, inference_cfg = load_stage(paths["inference"], InferenceModule, env=env, n_particles=n)
+    warn_other_prior(paths["inference"], inference_cfg, paths["dynamics"])
     test = load_split(cfg.data.root, env, "test", images=by_video, max_rollouts=cfg.eval.get("max_rollouts"))
     if test.positions.shape[2] != n:
         raise ValueError(f"{cfg.data.root}/{env}/test: {test.positions.shape[2]} particles, the checkpoints expect {n}")
