@@ -29,7 +29,6 @@ def merge(first: Proposals, rest: Proposals) -> Proposals:
     logits = torch.cat([first.logits[:, :frames], rest.logits[extra, :frames]])[order]
     attrs = dict(first.attrs) | {"visual_checkpoint": f"{first.attrs.get('visual_checkpoint')} ({len(first.rollout_ids)} videos) + "
                                                       f"{rest.attrs.get('visual_checkpoint')} ({int(extra.sum())} videos)"}
-    attrs.pop("format_version", None)
     return Proposals(positions, logits, ids[order], attrs)
 
 

@@ -231,7 +231,7 @@ class DynamicsPrior(NormalisationBuffers, L.LightningModule):
 
     def in_noise_free_finish(self) -> bool:
         """Whether this training step is in the last ``noise_free_steps`` (by step or by the clock)."""
-        k = self.hparams.get("noise_free_steps", 0)
+        k = self.hparams.noise_free_steps
         if k <= 0:
             return False
         # the step about to be taken is global_step + 1 of max_steps: steps max_steps - K .. max_steps - 1 are the last K
