@@ -190,9 +190,10 @@ def test_rollout_steps_loss_rolls_on_its_own_predictions_and_its_first_step_is_t
         make(0)
 
 
-def test_noise_free_steps_train_the_last_k_steps_without_history_noise(monkeypatch):
+def test_noise_free_steps_train_the_last_k_steps_without_history_noise(monkeypatch, caplog):
     """noise_free_steps=2 of max_steps=6: the history noise is drawn at steps 0-3 and not at 4-5
-    (session 41: noise to the end leaves RigidFall's prior falling at 0.96 of the true acceleration)."""
+    (session 41: noise to the end leaves RigidFall's prior falling at 0.96 of the true acceleration);
+    a fit that max_epochs stops before the finish says so."""
     import lightning as L
     from torch.utils.data import DataLoader
 
@@ -205,11 +206,13 @@ def test_noise_free_steps_train_the_last_k_steps_without_history_noise(monkeypat
     real = dp.add_history_noise
     monkeypatch.setattr(dp, "add_history_noise", lambda *a: (noisy_steps.append(model.global_step), real(*a))[1])
     batch = _window_batch(tr, g, q, planes, kin, 2, 5)
-    fit = lambda steps: L.Trainer(max_steps=steps, logger=False, enable_checkpointing=False, enable_progress_bar=False,  # noqa: E731
+    fit = lambda steps: L.Trainer(max_steps=steps, max_epochs=1, logger=False, enable_checkpointing=False, enable_progress_bar=False,  # noqa: E731
                                   enable_model_summary=False, limit_val_batches=0).fit(model, DataLoader([batch] * 8, batch_size=None))
     fit(6)
-    assert noisy_steps == [0, 1, 2, 3]
-    with pytest.raises(ValueError, match="model.dynamics.net.noise_free_steps=2 needs a finite model.dynamics.trainer.max_steps"):
+    assert noisy_steps == [0, 1, 2, 3] and "noise-free finish" not in caplog.text
+    fit(20)  # one epoch of 8 batches: max_epochs stops it at step 8, the finish was to begin at step 18
+    assert "dynamics: stopped at step 8 of trainer.max_steps=20 before its noise-free finish began (model.dynamics.net.noise_free_steps=2)" in caplog.text
+    with pytest.raises(ValueError, match="model.dynamics.net.noise_free_steps=2 needs a finite model.dynamics.trainer.max_steps, or trainer.max_steps"):
         fit(-1)
     with pytest.raises(ValueError, match="noise_free_steps=-1"):
         DynamicsPrior(scene.param_low.tolist(), scene.param_high.tolist(), scene.n_instances, radius=0.08, noise_free_steps=-1)

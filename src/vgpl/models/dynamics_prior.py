@@ -31,6 +31,8 @@ noise-free fine-tune of that prior (10k steps) read 1.006 and halved the oracle'
 
 from __future__ import annotations
 
+import logging
+
 import lightning as L
 import torch
 from torch import nn
@@ -41,6 +43,8 @@ from vgpl.graph import edge_features, max_degree, plane_ghosts, radius_graph
 from vgpl.models.step_learning_rate import annealed_fraction, set_learning_rate, training_clock
 from vgpl.nn.normalisation import NormalisationBuffers
 from vgpl.nn.propagation import EdgeEncoder, Propagator
+
+log = logging.getLogger(__name__)
 from vgpl.nn.rigid import momentum_projection, quaternion_to_matrix, rigid_displacement, soft_centroids
 
 PARTICLE, KINEMATIC, GHOST = 0, 1, 2
@@ -229,14 +233,26 @@ class DynamicsPrior(NormalisationBuffers, L.LightningModule):
         error = ((pred - positions[:, h : h + k]) / self.disp_std).abs()[:, :, ~kinematic]  # [B, k, movable, 3]
         return error.mean(), error[:, 0].mean()
 
-    def in_noise_free_finish(self) -> bool:
-        """Whether this training step is in the last ``noise_free_steps`` (by step or by the clock)."""
+    def in_noise_free_finish(self, steps_done: int | None = None) -> bool:
+        """Whether the training step after ``steps_done`` (default: global_step, the step about to be
+        taken) is in the last ``noise_free_steps``, by step or by the clock."""
         k = self.hparams.noise_free_steps
         if k <= 0:
             return False
-        # the step about to be taken is global_step + 1 of max_steps: steps max_steps - K .. max_steps - 1 are the last K
-        return annealed_fraction(self.global_step + 1, self.trainer.max_steps, k, *training_clock(self.trainer), stage="dynamics",
+        steps_done = self.global_step if steps_done is None else steps_done
+        # that step is number steps_done + 1 of max_steps: steps max_steps - K .. max_steps - 1 are the last K
+        return annealed_fraction(steps_done + 1, self.trainer.max_steps, k, *training_clock(self.trainer), stage="dynamics",
                                  option="noise_free_steps") < 1.0
+
+    def on_train_end(self) -> None:
+        """Warn when a fit with ``noise_free_steps`` stopped (on max_epochs) before its noise-free
+        finish began: its last.ckpt then carries the history noise's bias."""
+        steps = self.global_step
+        if self.hparams.noise_free_steps > 0 and steps > 0 and not self.in_noise_free_finish(steps - 1):
+            log.warning("dynamics: stopped at step %d of trainer.max_steps=%d before its noise-free finish began "
+                        "(model.dynamics.net.noise_free_steps=%d): the last step still trained with history noise; raise "
+                        "trainer.max_epochs, or resume with ckpt_path=last trainer.max_epochs=<more>", steps, self.trainer.max_steps,
+                        self.hparams.noise_free_steps)
 
     def training_step(self, batch, batch_idx):
         loss, first = self._loss(batch, noise=True)

@@ -43,7 +43,8 @@ def annealed_fraction(step: int, max_steps: int, anneal_steps: int, elapsed_s: f
     (visual, inference) and ``option`` (the net's key that asked for the schedule) name the config
     key in the error for a fit without max_steps."""
     if max_steps <= 0:
-        raise ValueError(f"model.{stage}.net.{option}={anneal_steps} needs a finite model.{stage}.trainer.max_steps (got {max_steps})")
+        raise ValueError(f"model.{stage}.net.{option}={anneal_steps} needs a finite model.{stage}.trainer.max_steps, "
+                         f"or trainer.max_steps, which every stage inherits (got {max_steps})")
     progress = (step - (max_steps - anneal_steps)) / anneal_steps
     if budget_s is not None and elapsed_s is not None and budget_s > 0:
         share = min(anneal_steps / max_steps, 1.0)
