@@ -198,3 +198,21 @@ def test_the_standard_visual_stage_anneals_the_last_third_of_its_budget():
     assert annealed_fraction(900, 3000, 1000, elapsed_s=750.0, budget_s=budget_s) == pytest.approx(0.5)
     assert annealed_fraction(1000, 3000, 1000, elapsed_s=budget_s, budget_s=budget_s) == 0.0
     assert annealed_fraction(2500, 3000, 1000, elapsed_s=60.0, budget_s=budget_s) == pytest.approx(0.5)
+
+
+def test_the_standard_prior_ends_without_history_noise_on_its_clock():
+    """The last 13,000 of the 78,300 steps (3 epochs) train without the history noise; the 58-min
+    clock stops a 2-core CPU near 59,000 steps (session 42), so the finish runs on the clock: from
+    48.4 minutes to the end, and by step on a machine fast enough to reach 78,300."""
+    with initialize_config_dir(str(REPO / "conf"), version_base="1.3"):
+        cfg = compose("config", overrides=["env=rigid_fall", "experiment=standard"])
+    k, max_steps, budget_s = cfg.model.dynamics.net.noise_free_steps, cfg.trainer.max_steps, 58 * 60
+    assert (k, max_steps, cfg.trainer.max_time, cfg.trainer.max_epochs) == (13000, 78300, "00:00:58:00", 3)
+    begins_s = (1 - k / max_steps) * budget_s
+    assert begins_s / 60 == pytest.approx(48.37, abs=0.01)
+    assert annealed_fraction(40000, max_steps, k, elapsed_s=begins_s - 1, budget_s=budget_s) == 1.0  # still noisy
+    assert annealed_fraction(40000, max_steps, k, elapsed_s=begins_s + 1, budget_s=budget_s) < 1.0  # noise-free
+    assert annealed_fraction(65301, max_steps, k, elapsed_s=60.0, budget_s=budget_s) < 1.0  # by step on a fast machine
+    with initialize_config_dir(str(REPO / "conf"), version_base="1.3"):
+        assert compose("config", overrides=["env=rigid_fall", "experiment=quick"]).model.dynamics.net.noise_free_steps == 0
+

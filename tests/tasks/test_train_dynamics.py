@@ -15,6 +15,7 @@ from vgpl.data.schema import DatasetError
 from vgpl.data.trajectories import load_split
 from vgpl.tasks.generate import generate
 from vgpl.tasks.train_dynamics import evaluate_dynamics, load_dynamics, train_dynamics
+from vgpl.tasks.train_inference import train_inference
 
 
 def config(tmp: Path, *overrides):
@@ -140,7 +141,6 @@ def test_truth_proposals_need_no_video_or_visual_prior_and_the_inference_module_
     task.noise_std metres, for the frames the inference windows read, on data without video; the
     inference module trains on them and its metrics say so. Bad options are refused by name."""
     from vgpl.data.proposals import read_proposals
-    from vgpl.tasks.train_inference import train_inference
     from vgpl.tasks.train_visual import export_proposals
 
     tmp, _ = trained
@@ -198,10 +198,10 @@ def test_ckpt_path_last_resumes_an_interrupted_run_from_the_stage_folder(tmp_pat
     generate(config(tmp_path, "task=generate"))
     last = tmp_path / "ckpt/dynamics/last.ckpt"
     decay = ["model.dynamics.net.lr=1e-3", "model.dynamics.net.lr_decay=0.5"]
-    train_dynamics(config(tmp_path, "task=train_dynamics", "trainer.max_epochs=5", "+trainer.max_steps=4", *decay))  # "interrupted" at step 4
+    train_dynamics(config(tmp_path, "task=train_dynamics", "trainer.max_epochs=5", "trainer.max_steps=4", *decay))  # "interrupted" at step 4
     first = torch.load(last, weights_only=False)
     with caplog.at_level("INFO"):
-        train_dynamics(config(tmp_path, "task=train_dynamics", "trainer.max_epochs=5", "+trainer.max_steps=9", "ckpt_path=last", *decay))
+        train_dynamics(config(tmp_path, "task=train_dynamics", "trainer.max_epochs=5", "trainer.max_steps=9", "ckpt_path=last", *decay))
     second = torch.load(last, weights_only=False)
     assert f"Restoring states from the checkpoint path at {last}" in caplog.text
     assert first["global_step"] == 4 and second["global_step"] == 9
@@ -229,7 +229,7 @@ def test_learning_rate_decays_by_global_step_across_a_time_capped_fit_and_its_re
     cut = torch.load(last, weights_only=False)["global_step"]
     assert 1 <= cut <= 5
     monkeypatch.setattr(DynamicsPrior, "training_step", step)
-    train_dynamics(config(tmp_path, "task=train_dynamics", "+trainer.max_steps=7", "ckpt_path=last", *decay))
+    train_dynamics(config(tmp_path, "task=train_dynamics", "trainer.max_steps=7", "ckpt_path=last", *decay))
     resumed = torch.load(last, weights_only=False)
     assert resumed["global_step"] == 7
     assert resumed["optimizer_states"][0]["param_groups"][0]["lr"] == pytest.approx(5e-4)  # step 6 began epoch 1
@@ -260,7 +260,7 @@ def test_a_run_killed_with_sigkill_resumes_from_its_last_checkpoint(tmp_path):
     proc.wait()
     killed_at = torch.load(last, weights_only=False)["global_step"]  # the file is whole: Lightning writes it atomically
     target = killed_at + 4
-    out = subprocess.run([*cmd, "ckpt_path=last", f"+trainer.max_steps={target}"], cwd=tmp_path, capture_output=True, text=True, timeout=300)
+    out = subprocess.run([*cmd, "ckpt_path=last", f"trainer.max_steps={target}"], cwd=tmp_path, capture_output=True, text=True, timeout=300)
     assert out.returncode == 0, out.stderr[-2000:]
     assert f"Restoring states from the checkpoint path at {last}" in out.stdout + out.stderr
     resumed = torch.load(last, weights_only=False)
@@ -353,3 +353,11 @@ def test_init_from_starts_a_fine_tune_from_the_checkpoints_weights(trained):
     with pytest.raises(CheckpointError, match="init_from has other layer shapes than model.dynamics.net"):
         train_dynamics(config(tmp, "task=train_dynamics", f"model.dynamics.init_from={result['checkpoint']}", "model.dynamics.net.width=16",
                               f"paths.ckpt_dir={tmp}/ckpt_bad"))
+
+
+def test_param_rotation_is_refused_on_an_env_without_the_symmetry(tmp_path):
+    """FluidCube's container is not symmetric about the vertical axis: the option is refused by
+    name before any checkpoint or data is read."""
+    with pytest.raises(ValueError, match=r"model\.inference\.net\.param_rotation=true: env=fluid_cube is not symmetric"):
+        train_inference(config(tmp_path, "task=train_inference", "env=fluid_cube", "model.inference.net.param_rotation=true"))
+    assert not (tmp_path / "ckpt").exists()
