@@ -11,6 +11,7 @@ from torch.utils.data import DataLoader
 
 from tests.conftest import REPO
 from tests.models.learning_rate_callbacks import BatchClock, LearningRates
+from vgpl.data.vertical_symmetry import about_vertical
 from vgpl.graph import own_radius_graph
 from vgpl.models.dynamics_prior import DynamicsPrior
 from vgpl.models.inference import InferenceModule
@@ -239,3 +240,27 @@ def test_the_config_key_reaches_the_module():
     net.lr_anneal_steps = 700
     model = hydra.utils.instantiate(net, _convert_="all", param_low=[-15.0], param_high=[-5.0], n_particles=24, n_instances=2, radius=0.3)
     assert model.hparams.lr_anneal_steps == 700 and model.anneal_stage == "inference"
+
+
+def test_param_rotation_turns_only_what_the_parameter_encoder_sees_in_training():
+    """param_rotation: in training P is read from the scene turned about the vertical axis (so two
+    draws differ, and equal P of the proposals turned by hand), while dX and Q, and P in eval, are
+    read from the proposals as they are."""
+    torch.manual_seed(0)
+    _, plain = _modules(param_rotation=False)
+    _, turned = _modules(param_rotation=True)
+    turned.load_state_dict(plain.state_dict())
+    x, g, kin = torch.rand(2, 6, 24, 3) - 0.5, torch.softmax(torch.randn(2, 24, 2), -1), torch.zeros(24, dtype=torch.bool)
+    turned.eval()
+    assert torch.equal(turned(x, g, kin)["params"], plain.eval()(x, g, kin)["params"])
+    turned.train()
+    torch.manual_seed(1)
+    first = turned(x, g, kin)
+    torch.manual_seed(1)
+    angle = torch.rand(2) * (2 * math.pi)
+    by_hand = plain.eval()(about_vertical(x, angle), g, kin)["params"]
+    assert torch.allclose(first["params"], by_hand, atol=1e-6) and not torch.allclose(first["params"], plain(x, g, kin)["params"])
+    assert torch.equal(first["refine"], plain(x, g, kin)["refine"]) and torch.equal(first["rigidness"], plain(x, g, kin)["rigidness"])
+    assert not torch.allclose(turned(x, g, kin)["params"], first["params"])  # a new angle each call
+    with pytest.raises(ValueError, match="param_rotation=true .* needs separate_param_net=true"):
+        _modules(param_rotation=True, separate_param_net=False)

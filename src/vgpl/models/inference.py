@@ -10,7 +10,9 @@ whatever the scene (measured; README, Design). ``"both"`` rolls from each, P lea
 true start only and dX through the refined one. ``tail_horizon`` k > 0 adds an L1 of k frames
 rolled from the last ``history`` refined frames, where the evaluation starts (not the paper);
 ``tail_detach_params`` keeps P out of it, as "both" keeps P out of the refined start.
-``lr_anneal_steps`` K > 0 anneals every rate to zero over the last K steps (or the same share of
+``param_rotation`` shows the parameter encoder each training scene turned about the vertical
+axis at random, a symmetry of RigidFall (not the paper: against the train/test gap
+of 300 training videos). ``lr_anneal_steps`` K > 0 anneals every rate to zero over the last K steps (or the same share of
 a trainer.max_time; ``AnnealedLearningRate``, as VisualPrior's; not the paper).
 Nothing supervises Q or P directly, unless
 ``param_weight`` > 0 adds an L1 on P (not the paper: a shortcut for presets of a few CPU
@@ -24,6 +26,7 @@ import torch
 from torch import nn
 from torch_geometric.nn import MLP
 
+from vgpl.data.vertical_symmetry import random_about_vertical
 from vgpl.eval.rollout import rollout
 from vgpl.graph import edge_features, radius_graph
 from vgpl.models.step_learning_rate import AnnealedLearningRate
@@ -99,8 +102,12 @@ class InferenceModule(AnnealedLearningRate, NormalisationBuffers, L.LightningMod
         tail_horizon: int = 0,
         tail_detach_params: bool = False,
         lr_anneal_steps: int = 0,
+        param_rotation: bool = False,
     ) -> None:
         super().__init__()
+        if param_rotation and not separate_param_net:
+            raise ValueError("InferenceModule: param_rotation=true rotates what the parameter encoder sees, "
+                             "and needs separate_param_net=true (a shared encoder would rotate dX and Q's input too)")
         if not 0 <= tail_horizon <= horizon:
             raise ValueError(f"InferenceModule: tail_horizon={tail_horizon}, expected 0 (off) to horizon={horizon} (the future frames a window holds)")
         if trajectory_start not in ("refined", "truth", "both"):
@@ -130,7 +137,7 @@ class InferenceModule(AnnealedLearningRate, NormalisationBuffers, L.LightningMod
         nodes = self._nodes(proposals, grouping, kinematic)
         h = self.encoder(nodes, proposals, grouping, self.pos_std)  # [B, T, N, 2W]
         refine = self.refine_head(h) * self.disp_std
-        hp = h if self.param_encoder is None else self.param_encoder(nodes, proposals, grouping, self.pos_std)
+        hp = h if self.param_encoder is None else self._param_code(nodes, proposals, grouping, kinematic)
         params = torch.tanh(self.param_head(hp.mean((1, 2))))
         return {"refine": refine, "rigidness": self._rigidness(h, grouping), "params": params}
 
@@ -151,6 +158,15 @@ class InferenceModule(AnnealedLearningRate, NormalisationBuffers, L.LightningMod
             (proposals - self.pos_mean) / self.pos_std, disp, grouping[:, None].expand(b, t, n, -1),
             kinematic[None, None, :, None].expand(b, t, n, 1).float(),
         ], -1)
+
+    def _param_code(self, nodes, proposals, grouping, kinematic) -> torch.Tensor:
+        """The parameter encoder's [B, T, N, 2W]; in training with ``param_rotation``, of each scene
+        turned about the vertical axis at random (``random_about_vertical``): P cannot then read the
+        training videos' layouts, only their motion (not the paper; the scene must be symmetric so)."""
+        if self.training and self.hparams.param_rotation:
+            proposals = random_about_vertical(proposals)
+            nodes = self._nodes(proposals, grouping, kinematic)
+        return self.param_encoder(nodes, proposals, grouping, self.pos_std)
 
     def _rigidness(self, h: torch.Tensor, grouping: torch.Tensor) -> torch.Tensor:
         """Encoder output [B, T, N, 2W] pooled per instance (grouping [B, N, M]) -> Q [B, M]."""

@@ -55,6 +55,9 @@ class Scene:
     instance_colors: tuple[tuple[float, float, float], ...] = ()  # RGB of each instance
     floor_y: float | None = 0.0  # drawn floor height (None: no floor)
     type_names: tuple[str, ...] = ()  # object type of each instance
+    # a rotation about the vertical axis through the origin maps a video to another of the same
+    # parameters (a floor as the only plane, objects placed symmetrically; vgpl.data.vertical_symmetry)
+    vertical_symmetry: bool = False
 
     def __init__(
         self,

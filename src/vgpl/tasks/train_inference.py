@@ -36,6 +36,9 @@ def train_inference(cfg: DictConfig) -> dict:
     setup_run(cfg)
     scene = scene_of(cfg)
     spec = cfg.model.inference
+    if spec.net.get("param_rotation") and not scene.vertical_symmetry:
+        raise ValueError(f"model.inference.net.param_rotation=true: env={scene.name} is not symmetric about the vertical axis "
+                         f"(planes or sampling that a rotation would change); only RigidFall is")
     dynamics, _ = load_stage(stage_checkpoint(cfg, "dynamics"), DynamicsPrior, env=scene.name)
     dm = grounding_datamodule(cfg, scene)
     dm.setup()

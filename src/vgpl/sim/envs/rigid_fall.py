@@ -19,6 +19,7 @@ class RigidFall(Scene):
     default_camera = dict(eye=(0.2, 0.875, 2.0), target=(0.0, 0.5, 0.0), fov_y=50.0)
     instance_colors = ((0.85, 0.25, 0.2), (0.25, 0.7, 0.3), (0.25, 0.4, 0.85))
     action_dim = 0
+    vertical_symmetry = True  # a floor only; jitter and yaw are symmetric about the y axis
 
     def __init__(
         self,
