@@ -26,7 +26,8 @@ the range too strong, the bias of every inference module trained through it. Wit
 ``noise_free_steps`` K > 0 the last K of trainer.max_steps (or the same share of a
 trainer.max_time, whichever comes first, as ``lr_anneal_steps``) train without it; a 10-minute
 noise-free fine-tune of that prior (10k steps) read 1.006 and halved the oracle's error
-(docs/experiments.md: session 41).
+(docs/experiments.md: session 41); the standard preset trains its last 13,000 of 78,300 steps so,
+and from nothing reads 0.993 with an unbiased oracle of 0.83% (session 42).
 """
 
 from __future__ import annotations
@@ -43,9 +44,9 @@ from vgpl.graph import edge_features, max_degree, plane_ghosts, radius_graph
 from vgpl.models.step_learning_rate import annealed_fraction, set_learning_rate, training_clock
 from vgpl.nn.normalisation import NormalisationBuffers
 from vgpl.nn.propagation import EdgeEncoder, Propagator
+from vgpl.nn.rigid import momentum_projection, quaternion_to_matrix, rigid_displacement, soft_centroids
 
 log = logging.getLogger(__name__)
-from vgpl.nn.rigid import momentum_projection, quaternion_to_matrix, rigid_displacement, soft_centroids
 
 PARTICLE, KINEMATIC, GHOST = 0, 1, 2
 
