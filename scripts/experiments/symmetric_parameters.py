@@ -31,12 +31,13 @@ from vgpl.data.grounding import split_with_proposals
 from vgpl.data.vertical_symmetry import about_vertical
 from vgpl.eval.grounding import infer_in_chunks
 from vgpl.models.inference import InferenceModule
+from vgpl.sim.envs import ENVS
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("checkpoints", nargs="+")
-    parser.add_argument("--env", required=True, choices=["rigid_fall"], help="an env whose scene has vertical_symmetry")
+    parser.add_argument("--env", required=True, choices=sorted(ENVS), help="an env whose scene has vertical_symmetry")
     parser.add_argument("--root", default="data/standard")
     parser.add_argument("--observed", type=int, default=10, help="frames observed (eval.observed)")
     parser.add_argument("--split", default="test", choices=["train", "test"])
@@ -45,6 +46,9 @@ def main() -> None:
     args = parser.parse_args()
     if args.rotations < 1:
         parser.error(f"--rotations {args.rotations}: expected >= 1")
+    if not ENVS[args.env].vertical_symmetry:
+        parser.error(f"--env {args.env}: its scene is not symmetric about the vertical axis (Scene.vertical_symmetry), "
+                     "so a turned video is not one of the same parameters")
     videos, proposals = split_with_proposals(args.root, args.env, args.split)
     results = {}
     for ckpt in args.checkpoints:
