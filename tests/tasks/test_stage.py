@@ -216,14 +216,3 @@ def test_the_standard_prior_ends_without_history_noise_on_its_clock():
     with initialize_config_dir(str(REPO / "conf"), version_base="1.3"):
         assert compose("config", overrides=["env=rigid_fall", "experiment=quick"]).model.dynamics.net.noise_free_steps == 0
 
-
-@pytest.mark.parametrize("env", ["mass_rope", "fluid_cube"])
-def test_the_standard_prior_keeps_history_noise_to_the_end_off_rigid_fall(env):
-    """The noise-free finish is RigidFall's (conf/env/rigid_fall.yaml): on MassRope it made the
-    stiffness oracle worse (14.6% -> 18.6%, session 43) and FluidCube is not measured, so their
-    standard priors train with the noise to the end; an explicit override still sets it."""
-    with initialize_config_dir(str(REPO / "conf"), version_base="1.3"):
-        assert compose("config", overrides=[f"env={env}", "experiment=standard"]).model.dynamics.net.noise_free_steps == 0
-        overridden = compose("config", overrides=[f"env={env}", "experiment=standard", "model.dynamics.net.noise_free_steps=500"])
-        assert overridden.model.dynamics.net.noise_free_steps == 500
-
