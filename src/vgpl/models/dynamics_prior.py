@@ -26,8 +26,10 @@ the range too strong, the bias of every inference module trained through it. Wit
 ``noise_free_steps`` K > 0 the last K of trainer.max_steps (or the same share of a
 trainer.max_time, whichever comes first, as ``lr_anneal_steps``) train without it; a 10-minute
 noise-free fine-tune of that prior (10k steps) read 1.006 and halved the oracle's error
-(docs/experiments.md: session 41); the standard preset trains its last 13,000 of 78,300 steps so,
-and from nothing reads 0.993 with an unbiased oracle of 0.83% (session 42).
+(docs/experiments.md: session 41); the standard preset trains the last 13,000 of 78,300 steps so,
+and RigidFall's prior from nothing reads 0.993 with an unbiased oracle of 0.83% (session 42). MassRope's
+prior with the noise to the end already moves its sphere right (acceleration slope 1.006), and its
+stiffness oracle moved more between checkpoints than the finish moved it (session 43).
 """
 
 from __future__ import annotations
