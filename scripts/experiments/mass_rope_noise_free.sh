@@ -10,7 +10,7 @@
 # (step50000.ckpt, the finish began near step 50,800) and on the finished prior, then the control:
 # step50000 trained the same 9,346 steps at the same rate (9e-5, epoch 1 of lr 3e-4 x 0.3) WITH the
 # noise, so that the finish and the extra steps are told apart. Then the visual stage and the
-# proposals; the inference module was left for the next session (25 min cap, 3,000 steps).
+# proposals, and the inference module, started at the end and stopped by its 25-min cap (1,280 of 3,000 steps).
 # Usage: bash scripts/experiments/mass_rope_noise_free.sh            # about 2 h 10 min
 #        SKIP_PRIOR=1 bash scripts/experiments/mass_rope_noise_free.sh  # the prior already trained
 set -euo pipefail
@@ -37,8 +37,8 @@ run task=evaluate_dynamics ckpt_path=checkpoints/s43_prior_noisy_control/mass_ro
 python scripts/experiments/prior_acceleration_slope.py checkpoints/s43_prior_noisy_control/mass_rope/dynamics/last.ckpt
 # The control read worse than the finish (oracle 24.1% against 18.6%), and step50000 better than both (14.6%):
 # MassRope's oracle moves between checkpoints more than the finish moves it (docs/experiments.md: session 43).
-# Next (not run): the inference module through the preset's prior (last.ckpt), and the four-way.
-# run task=train_inference ckpt.dynamics=$CK/dynamics/last.ckpt hydra.run.dir=$O/inference
+run task=train_inference ckpt.dynamics=$CK/dynamics/last.ckpt hydra.run.dir=$O/inference                     # 25 min, validation 19.0%
+# Next (not run): that module resumed (ckpt_path=last, a larger model.inference.trainer.max_time), and the four-way.
 # run task=train_inference ablation=no_rigidness ckpt.dynamics=$CK/dynamics/last.ckpt hydra.run.dir=$O/inference_no_rigidness
 # python run.py -m task=evaluate env=mass_rope experiment=standard ckpt.dynamics=$CK/dynamics/last.ckpt ablation=full,no_rigidness,no_params,no_refinement \
 #   hydra.sweep.dir=$O/evaluate hydra.sweep.subdir='${ablation.name}'
