@@ -20,31 +20,9 @@ import argparse
 import torch
 
 from vgpl.checkpoint import scene_of
-from vgpl.data.trajectories import ground_truth_grouping, load_split
+from vgpl.data.trajectories import load_split
+from vgpl.eval.one_step import one_step_accelerations, slope
 from vgpl.tasks.train_dynamics import load_dynamics
-
-
-def accelerations(model, scene, test, start: int, frames: int) -> tuple[torch.Tensor, torch.Tensor]:
-    """(predicted, true) accelerations [V, F, N, 3] from one step of the true history, frames start+H .. start+frames-1."""
-    h = model.hparams.history
-    n = test.positions.shape[0]
-    kinematic = torch.as_tensor(scene.kinematic)
-    grouping = ground_truth_grouping(test).expand(n, -1, -1)
-    rigidness = test.rigid.float().expand(n, -1)
-    pred, true = [], []
-    for t in range(start + h, start + frames):
-        window = test.positions[:, t - h : t + 1]
-        planes = scene.planes_at(test.actions[:, t - h : t + 1])
-        nxt = model.step(window[:, :h], grouping, rigidness, test.params, planes, kinematic, window[:, h])
-        before = -2 * window[:, h - 1] + window[:, h - 2]
-        pred.append(nxt + before)
-        true.append(window[:, h] + before)
-    return torch.stack(pred, 1), torch.stack(true, 1)
-
-
-def slope(pred: torch.Tensor, true: torch.Tensor) -> float:
-    """Least-squares slope of pred on true through the origin (any shape, the last dim a vector)."""
-    return float((pred * true).sum() / (true * true).sum())
 
 
 def main() -> None:
@@ -61,7 +39,7 @@ def main() -> None:
         scene = scene_of(cfg)
         start = int(cfg.env.get("start_frame", 0))
         test = load_split(args.root, scene.name, "test", max_rollouts=args.videos)
-        pred, true = accelerations(model, scene, test, start, args.frames)
+        pred, true = one_step_accelerations(model, scene, test, start, args.frames)
         movable = ~torch.as_tensor(scene.kinematic)
         print(f"{path}: {scene.name}, {test.positions.shape[0]} test videos, frames {start + model.hparams.history}-{start + args.frames - 1}")
         for m in range(int(test.rigid.shape[0])):

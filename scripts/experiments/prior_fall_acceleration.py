@@ -18,30 +18,24 @@ import argparse
 import torch
 
 from vgpl.checkpoint import scene_of
-from vgpl.data.trajectories import ground_truth_grouping, load_split
+from vgpl.data.trajectories import load_split
 from vgpl.eval.free_fall import UP
+from vgpl.eval.one_step import one_step_accelerations
 from vgpl.tasks.train_dynamics import load_dynamics
 
 
 def fall_acceleration_ratio(model, scene, test, frames: int) -> list[tuple[int, int, float]]:
     """[(frame t, free-falling particles counted, predicted / true y acceleration)] for t = H..frames-1."""
     h = model.hparams.history
-    n = test.positions.shape[0]
-    kinematic = torch.as_tensor(scene.kinematic)
-    grouping = ground_truth_grouping(test).expand(n, -1, -1)
-    rigidness = test.rigid.float().expand(n, -1)
-    dt = float(scene.dt)
-    expected = (test.params[:, 0] * dt**2)[:, None]  # [V, 1] m / frame^2 of free fall
+    pred, true = one_step_accelerations(model, scene, test, 0, frames)  # [V, F, N, 3], frames H..frames-1
+    movable = ~torch.as_tensor(scene.kinematic)
+    expected = (test.params[:, 0] * float(scene.dt) ** 2)[:, None]  # [V, 1] m / frame^2 of free fall
     rows = []
-    for t in range(h, frames):
-        window = test.positions[:, t - h : t + 1]
-        planes = scene.planes_at(test.actions[:, t - h : t + 1])
-        nxt = model.step(window[:, :h], grouping, rigidness, test.params, planes, kinematic, None)
-        true_acc = (window[:, h] - 2 * window[:, h - 1] + window[:, h - 2])[:, ~kinematic, UP]  # [V, movable]
-        pred_acc = (nxt - 2 * window[:, h - 1] + window[:, h - 2])[:, ~kinematic, UP]
+    for f in range(pred.shape[1]):
+        true_acc, pred_acc = true[:, f, movable, UP], pred[:, f, movable, UP]  # [V, movable]
         falling = (true_acc / expected - 1).abs() < 0.01
         count = int(falling.sum())
-        rows.append((t, count, float(pred_acc[falling].sum() / true_acc[falling].sum()) if count else float("nan")))
+        rows.append((h + f, count, float(pred_acc[falling].sum() / true_acc[falling].sum()) if count else float("nan")))
     return rows
 
 
