@@ -361,3 +361,21 @@ def test_param_rotation_is_refused_on_an_env_without_the_symmetry(tmp_path):
     with pytest.raises(ValueError, match=r"model\.inference\.net\.param_rotation=true: env=fluid_cube is not symmetric"):
         train_inference(config(tmp_path, "task=train_inference", "env=fluid_cube", "model.inference.net.param_rotation=true"))
     assert not (tmp_path / "ckpt").exists()
+
+
+def test_the_priors_weight_average_is_what_its_checkpoints_and_its_evaluation_hold(trained):
+    """model.dynamics.ema.decay: every checkpoint (snapshots too) holds the average as its
+    state_dict and the weights being trained beside it, and the evaluation after training is the
+    average's (the checkpoint alone reproduces it)."""
+    tmp, _ = trained
+    ema = ["model.dynamics.ema.decay=0.5", "model.dynamics.snapshot_every_n_steps=3", "model.dynamics.net.lr=1e-2",
+           f"paths.ckpt_dir={tmp}/ckpt_ema", f"paths.output_dir={tmp}/run_ema"]
+    result = train_dynamics(config(tmp, "task=train_dynamics", *ema))
+    for path in (Path(result["checkpoint"]), tmp / "ckpt_ema/dynamics/step3.ckpt"):
+        ckpt = torch.load(path, weights_only=False)
+        average, trained_now = ckpt["state_dict"], ckpt["current_model_state"]
+        assert average.keys() == trained_now.keys()
+        assert any(not torch.equal(average[k], trained_now[k]) for k in average)  # lr 1e-2: the two have parted
+    again = evaluate_dynamics(config(tmp, "task=evaluate_dynamics", f"ckpt_path={result['checkpoint']}", "task.param_grid=0",
+                                     f"paths.output_dir={tmp}/run_ema_eval"))
+    assert again["future_mse_x1e4@10"] == result["future_mse_x1e4@10"]

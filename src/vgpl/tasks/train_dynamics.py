@@ -111,6 +111,7 @@ def evaluate_dynamics(cfg: DictConfig) -> dict:
         model, scene, test, cfg.eval.observed, cfg.eval.n_steps, cfg.eval.get("max_rollouts"), train_cfg.env.get("start_frame", 0)
     )
     out = Path(cfg.paths.output_dir)
+    out.mkdir(parents=True, exist_ok=True)  # run.py's Hydra makes it; a direct call may not have
     result = {"env": scene.name, "checkpoint": str(cfg.ckpt_path), **metrics}
     # metrics.json is rewritten after each part, so a later part that fails or is stopped (no
     # proposals; the gradient agreement can take an hour) keeps the numbers of the earlier ones
