@@ -116,6 +116,15 @@ def ground_truth_grouping(rollouts: Rollouts) -> torch.Tensor:
     return torch.nn.functional.one_hot(rollouts.instance, int(rollouts.rigid.shape[0])).float()
 
 
+def true_window(scene: Scene, test: Rollouts, start: int, n_frames: int, n: int) -> tuple:
+    """The first ``n`` rollouts' frames ``start`` .. ``start + n_frames - 1`` with their true grouping and
+    rigidness: (positions [n, F, N, 3] (a copy), grouping [n, N, M], rigidness [n, M], params [n, P],
+    planes [n, F, K, 4], kinematic [N]), the arguments the prior's sweeps take in this order."""
+    frames = slice(start, start + n_frames)
+    return (test.positions[:n, frames].clone(), ground_truth_grouping(test).expand(n, -1, -1), test.rigid.float().expand(n, -1),
+            test.params[:n], scene.planes_at(test.actions[:n, frames]), torch.as_tensor(scene.kinematic))
+
+
 class TrajectoryWindows(Dataset):
     """Every window (rollout r, frame t) with ``history`` frames up to t and ``horizon`` after,
     inside frames [start_frame, start_frame + span) when ``span`` is given."""

@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import torch
 
-from vgpl.data.trajectories import Rollouts, ground_truth_grouping
+from vgpl.data.trajectories import Rollouts, true_window
 
 
 def one_step_accelerations(model, scene, rollouts: Rollouts, start: int, frames: int) -> tuple[torch.Tensor, torch.Tensor]:
@@ -19,15 +19,11 @@ def one_step_accelerations(model, scene, rollouts: Rollouts, start: int, frames:
     h = model.hparams.history
     if start + frames > rollouts.positions.shape[1]:
         raise ValueError(f"one_step_accelerations: frames {start}..{start + frames - 1} exceed the {rollouts.positions.shape[1]}-frame rollouts")
-    n = rollouts.positions.shape[0]
-    kinematic = torch.as_tensor(scene.kinematic)
-    grouping = ground_truth_grouping(rollouts).expand(n, -1, -1)
-    rigidness = rollouts.rigid.float().expand(n, -1)
+    positions, grouping, rigidness, params, planes, kinematic = true_window(scene, rollouts, start, frames, rollouts.positions.shape[0])
     pred, true = [], []
-    for t in range(start + h, start + frames):
-        window = rollouts.positions[:, t - h : t + 1]
-        planes = scene.planes_at(rollouts.actions[:, t - h : t + 1])
-        nxt = model.step(window[:, :h], grouping, rigidness, rollouts.params, planes, kinematic, window[:, h])
+    for t in range(h, frames):
+        window = positions[:, t - h : t + 1]
+        nxt = model.step(window[:, :h], grouping, rigidness, params, planes[:, t - h : t + 1], kinematic, window[:, h])
         before = -2 * window[:, h - 1] + window[:, h - 2]
         pred.append(nxt + before)
         true.append(window[:, h] + before)

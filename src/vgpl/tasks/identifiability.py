@@ -20,7 +20,7 @@ from vgpl.checkpoint import load_stage, scene_of
 from vgpl.data.grounding import proposals_path
 from vgpl.data.proposals import read_proposals
 from vgpl.data.schema import DatasetError
-from vgpl.data.trajectories import Rollouts, ground_truth_grouping, load_split
+from vgpl.data.trajectories import Rollouts, load_split, true_window
 from vgpl.eval.figures import gradient_agreement_figure, params_figure, save
 from vgpl.eval.identifiability import oracle_param_sweep, param_gradient_agreement
 from vgpl.models.dynamics_prior import DynamicsPrior
@@ -34,15 +34,6 @@ ON_FAIL = ("warn", "stop", "off")
 
 class IdentifiabilityError(RuntimeError):
     """The dynamics prior's rollout loss does not identify a physical parameter."""
-
-
-def true_window(scene: Scene, test: Rollouts, start: int, n_frames: int, n: int) -> tuple:
-    """The first ``n`` rollouts' frames ``start`` .. ``start + n_frames - 1`` with their true grouping and
-    rigidness: (positions [n, F, N, 3] (a copy), grouping [n, N, M], rigidness [n, M], params [n, P],
-    planes [n, F, K, 4], kinematic [N]), the arguments the prior's sweeps take in this order."""
-    frames = slice(start, start + n_frames)
-    return (test.positions[:n, frames].clone(), ground_truth_grouping(test).expand(n, -1, -1), test.rigid.float().expand(n, -1),
-            test.params[:n], scene.planes_at(test.actions[:n, frames]), torch.as_tensor(scene.kinematic))
 
 
 def evaluate_identifiability(model: DynamicsPrior, scene: Scene, test: Rollouts, root: str, observed: int, horizon: int, grid: int,
