@@ -26,7 +26,8 @@ from vgpl.sim.scene import Scene
 class Rollouts:
     """All rollouts of a split in memory: positions [R, T, N, 3], params [R, P], actions [R, T, A],
     instance [N], rigid [M], param_low/high [P], rollout_ids [R]; images uint8 [R, T, H, W, 3]
-    when loaded with ``images=True`` (a StreamedVideos read on demand with ``stream=True``)."""
+    when loaded with ``images=True`` (a StreamedVideos read on demand with ``stream=True``);
+    the engine's velocities [R, T, N, 3] with ``velocities=True`` (to restart it from a frame)."""
 
     positions: torch.Tensor
     params: torch.Tensor
@@ -38,10 +39,11 @@ class Rollouts:
     env: str
     rollout_ids: torch.Tensor | None = None
     images: torch.Tensor | StreamedVideos | None = None
+    velocities: torch.Tensor | None = None
 
 
 def load_split(root: str | Path, env: str, split: str, images: bool = False, max_rollouts: int | None = None,
-               stream: bool = False) -> Rollouts:
+               stream: bool = False, velocities: bool = False) -> Rollouts:
     """Read the shards of ``root/env/split`` (validated), in rollout order; the first
     ``max_rollouts`` rollouts only when given (only those are read). Videos are read straight
     into one array, with no copy per shard, or with ``stream=True`` left in their files and read
@@ -61,7 +63,7 @@ def load_split(root: str | Path, env: str, split: str, images: bool = False, max
     return Rollouts(
         cat("positions"), cat("params"), cat("actions"), torch.as_tensor(first.instance), torch.as_tensor(first.rigid),
         torch.as_tensor(np.asarray(first.attrs["param_low"], np.float32)), torch.as_tensor(np.asarray(first.attrs["param_high"], np.float32)),
-        str(first.attrs["env"]), cat("rollout_ids"), videos,
+        str(first.attrs["env"]), cat("rollout_ids"), videos, cat("velocities") if velocities else None,
     )
 
 

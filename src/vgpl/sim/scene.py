@@ -26,12 +26,15 @@ class RolloutSample:
     """The random draws that define one rollout (all numpy, drawn from the rollout's own seed).
 
     positions: [N, 3] initial positions; params: [P] physical parameters in physical units;
-    actions: [T, A] kinematic state per frame (container or pin position and velocity).
+    actions: [T, A] kinematic state per frame (container or pin position and velocity);
+    velocities: [N, 3] initial velocities, None at rest (a recorded frame's positions, velocities
+    and the actions from that frame on continue the recorded rollout: vgpl.eval.param_response).
     """
 
     positions: np.ndarray
     params: np.ndarray
     actions: np.ndarray
+    velocities: np.ndarray | None = None
 
 
 @dataclass
@@ -187,7 +190,11 @@ class Scene:
         b, n, _ = x.shape
         ctx = self.prepare(params, actions)
         ctx["actions"] = actions
-        v = torch.zeros_like(x)
+        for k, s in enumerate(samples):
+            if s.velocities is not None and np.shape(s.velocities) != np.shape(s.positions):
+                raise ValueError(f"{self.name}: sample {k} has velocities of shape {np.shape(s.velocities)}, expected its positions' {np.shape(s.positions)}")
+        v = torch.stack([torch.zeros_like(x[0]) if s.velocities is None else torch.as_tensor(s.velocities, dtype=torch.float32, device=device)
+                         for s in samples])
         pos = torch.empty(b, self.n_steps, n, 3, device=device)
         vel = torch.empty_like(pos)
         pos[:, 0], vel[:, 0] = x, v
