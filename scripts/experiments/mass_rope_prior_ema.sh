@@ -24,9 +24,11 @@ if [[ -z "${SKIP_PRIOR:-}" ]]; then
 fi
 # the weights being trained, beside each averaged snapshot (the folder's config.yaml loads both)
 SNAPS=$(cd $CK && ls step*.ckpt | sort -V | sed 's/.ckpt$//') ; SNAPS="$SNAPS last"   # 10k, 20k, ... as far as the run got
-for c in $SNAPS; do
-  python -c "from vgpl.weight_averaging import trained_weights_checkpoint as t; t('$CK/$c.ckpt', '$CK/raw_$c.ckpt')"
-done
+python -c "
+import sys
+from vgpl.weight_averaging import trained_weights_checkpoint as t
+for c in sys.argv[2:]:
+    t(f'{sys.argv[1]}/{c}.ckpt', f'{sys.argv[1]}/raw_{c}.ckpt')" $CK $SNAPS   # one torch import for every snapshot
 # rollouts only (T+1..T+20 on 100 test videos, ~1 min each)
 for c in $SNAPS; do
   for w in "" raw_; do

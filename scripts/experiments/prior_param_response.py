@@ -22,7 +22,7 @@ import torch
 
 from vgpl.checkpoint import scene_of
 from vgpl.data.trajectories import load_split
-from vgpl.eval.param_response import param_response, summary
+from vgpl.eval.param_response import param_response
 from vgpl.tasks.train_dynamics import load_dynamics
 
 
@@ -45,15 +45,19 @@ def main() -> None:
         start = int(cfg.env.get("start_frame", 0))
         test = load_split(args.root, scene.name, "test", max_rollouts=args.videos, velocities=True)
         n = test.positions.shape[0]
+        # every movable particle (what the oracle's L1 sums), then each object alone
+        subsets = [("all", None)] + [(f"object {m} ({scene.instance_types[m]})", test.instance == m) for m in range(int(test.rigid.shape[0]))]
         for j, name in enumerate(scene.param_names):
-            s = summary(param_response(model, scene, test, start, args.frames, n, j, args.delta))
-            rows.append({"checkpoint": path, "env": scene.name, "param": name, "videos": n, "history": model.hparams.history,
-                         "frames": [start, start + args.frames - 1], "delta": args.delta, **s})
-            print(f"{path} ({scene.name}, H={model.hparams.history}, {n} videos, {time.time() - began:.0f} s): {name}: "
-                  f"slope {s['pooled_slope']:.3f} (median {s['median_slope']:.3f}), cosine {s['median_cosine']:.2f}, "
-                  f"|r_E| {s['median_engine_response']:.1f}, |r_P| {s['median_prior_response']:.1f}, residual {s['median_residual']:.1f}; "
-                  f"linearised oracle {s['linear_mae_pct_prior_response']:.1f}% (with the engine's response {s['linear_mae_pct_engine_response']:.1f}%); "
-                  f"restart error {s['restart_error_m']:.1e} m")
+            response = param_response(model, scene, test, start, args.frames, n, j, args.delta)
+            for label, members in subsets:
+                s = response.summary(members)
+                rows.append({"checkpoint": path, "env": scene.name, "param": name, "particles": label, "videos": n, "history": model.hparams.history,
+                             "frames": [start, start + args.frames - 1], "delta": args.delta, **s})
+                print(f"{path} ({scene.name}, H={model.hparams.history}, {n} videos, {time.time() - began:.0f} s): {name}, {label}: "
+                      f"slope {s['pooled_slope']:.3f} (median {s['median_slope']:.3f}), cosine {s['median_cosine']:.2f}, "
+                      f"|r_E| {s['median_engine_response']:.1f}, |r_P| {s['median_prior_response']:.1f}, residual {s['median_residual']:.1f}; "
+                      f"linearised oracle {s['linear_mae_pct_prior_response']:.1f}% (with the engine's response {s['linear_mae_pct_engine_response']:.1f}%); "
+                      f"restart error {s['restart_error_m']:.1e} m")
     if args.json:
         with open(args.json, "w") as f:
             json.dump({"machine": platform.processor() or platform.machine(), "torch": torch.__version__, "rows": rows}, f, indent=1)

@@ -17,6 +17,7 @@ wrong particles, and |e| / |r_E| how many parameter units the residual is worth.
 from __future__ import annotations
 
 import copy
+from dataclasses import dataclass
 
 import torch
 
@@ -50,22 +51,68 @@ def _dot(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
     return (a * b).flatten(1).sum(1)
 
 
+@dataclass
+class ParamResponse:
+    """Responses per normalised unit of the parameter and the prior's residual at the truth, each
+    [B, K, N, 3] in units of the prior's displacement std; ``truth`` [B] normalised;
+    ``restart_error`` the engine's max |restart at the truth - recording| (metres), ``movable`` [N]."""
+
+    engine: torch.Tensor
+    prior: torch.Tensor
+    residual: torch.Tensor
+    truth: torch.Tensor
+    restart_error: float
+    movable: torch.Tensor
+
+    def per_scene(self, particles: torch.Tensor | None = None) -> dict:
+        """Over the movable ``particles`` [N] bool (None: every movable one, what the oracle's L1
+        sums), per scene [B]: ``slope`` <r_P, r_E> / <r_E, r_E>, ``cosine``, ``engine_response`` and
+        ``prior_response`` (|r|), ``residual`` (|e|), ``linear_error_prior`` and
+        ``linear_error_engine`` (-<e, r> / <r, r>: the least-squares argmin's error, normalised, with
+        the prior's or the engine's response); and ``pooled_slope`` over all scenes."""
+        keep = self.movable if particles is None else self.movable & particles
+        r_e, r_p, e = self.engine[:, :, keep], self.prior[:, :, keep], self.residual[:, :, keep]
+        ee, pp, pe = _dot(r_e, r_e), _dot(r_p, r_p), _dot(r_p, r_e)
+        return {
+            "slope": pe / ee,
+            "cosine": pe / (ee * pp).sqrt(),
+            "engine_response": ee.sqrt(),
+            "prior_response": pp.sqrt(),
+            "residual": _dot(e, e).sqrt(),
+            "linear_error_prior": -_dot(e, r_p) / pp,
+            "linear_error_engine": -_dot(e, r_e) / ee,
+            "pooled_slope": float(pe.sum() / ee.sum()),
+        }
+
+    def summary(self, particles: torch.Tensor | None = None) -> dict[str, float]:
+        """Scalars over ``particles`` (as ``per_scene``): pooled slope, median slope and cosine,
+        median |r_E|, |r_P| and |e|, and the linearised argmins' MAE as % of the range (50 x mean
+        |error|, normalised; the estimate clamped to the range as the oracle's grid is)."""
+        r = self.per_scene(particles)
+        mae = lambda k: float(((self.truth + r[k]).clamp(-1.0, 1.0) - self.truth).abs().mean() * 50.0)  # noqa: E731
+        med = lambda k: float(r[k].median())  # noqa: E731
+        return {
+            "pooled_slope": r["pooled_slope"],
+            "median_slope": med("slope"),
+            "median_cosine": med("cosine"),
+            "median_engine_response": med("engine_response"),
+            "median_prior_response": med("prior_response"),
+            "median_residual": med("residual"),
+            "linear_mae_pct_prior_response": mae("linear_error_prior"),
+            "linear_mae_pct_engine_response": mae("linear_error_engine"),
+            "restart_error_m": self.restart_error,
+        }
+
+
 def param_response(model, scene: Scene, rollouts: Rollouts, start: int, frames: int, n: int, param: int = 0,
-                   delta: float = 0.1) -> dict:
+                   delta: float = 0.1) -> ParamResponse:
     """The engine's and the prior's response to parameter ``param`` over the oracle's window.
 
     Window: frames ``start`` .. ``start + frames - 1`` of the first ``n`` rollouts; the prior rolls
     from the true first H frames (true G, Q, the other parameters true), the engine restarts from
-    the recorded state of frame start + H - 1. Responses are central differences over +-``delta``
-    (normalised units: the range is [-1, 1]) about the truth, the pair shifted inside the range at
-    its ends; displacements are in units of the prior's displacement std (as the oracle's L1),
-    over the movable particles.
-
-    Returns per scene [n]: ``slope`` <r_P, r_E> / <r_E, r_E>, ``cosine``, ``engine_response`` and
-    ``prior_response`` (|r| per normalised unit), ``residual`` (|e|), ``linear_error_prior`` and
-    ``linear_error_engine`` (-<e, r> / <r, r>: the least-squares argmin's error, normalised units,
-    with the prior's or the engine's response), ``truth`` (normalised); and ``restart_error`` (max |engine at the truth -
-    recording|, metres: the restart's own check) and ``pooled_slope``.
+    the recorded state of frame start + H - 1 (both drive kinematic particles by the recording).
+    Responses are central differences over +-``delta`` (normalised units: the range is [-1, 1])
+    about the truth, the pair shifted inside the range at its ends.
     """
     h = model.hparams.history
     positions, grouping, rigidness, params, planes, kinematic = true_window(scene, rollouts, start, frames, n)
@@ -75,51 +122,22 @@ def param_response(model, scene: Scene, rollouts: Rollouts, start: int, frames: 
     centre[:, param] = truth[:, param].clamp(-1.0 + delta, 1.0 - delta)
     shift = torch.zeros_like(truth)
     shift[:, param] = delta
-    movable = ~kinematic
     scale = model.disp_std
 
     def engine(p: torch.Tensor) -> torch.Tensor:
-        return engine_from_frame(scene, rollouts, start + h - 1, n_steps, model.to_physical(p))[:, :, movable] / scale
+        return engine_from_frame(scene, rollouts, start + h - 1, n_steps, model.to_physical(p)) / scale
 
     def prior(p: torch.Tensor) -> torch.Tensor:
-        return rollout(model, positions, grouping, rigidness, model.to_physical(p), planes, kinematic, n_steps)[:, :, movable] / scale
+        return rollout(model, positions, grouping, rigidness, model.to_physical(p), planes, kinematic, n_steps) / scale
 
     with torch.no_grad():
-        recorded = positions[:, h:, movable] / scale
+        recorded = positions[:, h:] / scale
         restart_error = float(((engine(truth) - recorded) * scale).abs().max())
-        r_e = (engine(centre + shift) - engine(centre - shift)) / (2 * delta)
-        r_p = (prior(centre + shift) - prior(centre - shift)) / (2 * delta)
-        e = prior(truth) - recorded
-    ee, pp, pe = _dot(r_e, r_e), _dot(r_p, r_p), _dot(r_p, r_e)
-    return {
-        "slope": pe / ee,
-        "cosine": pe / (ee * pp).sqrt(),
-        "engine_response": ee.sqrt(),
-        "prior_response": pp.sqrt(),
-        "residual": _dot(e, e).sqrt(),
-        "linear_error_prior": -_dot(e, r_p) / pp,
-        "linear_error_engine": -_dot(e, r_e) / ee,
-        "truth": truth[:, param],
-        "restart_error": restart_error,
-        "pooled_slope": float(pe.sum() / ee.sum()),
-    }
-
-
-def summary(response: dict) -> dict[str, float]:
-    """Scalars of ``param_response``: pooled slope, median slope and cosine, median |r_E|, |r_P|
-    and |e|, and the linearised argmins' MAE as % of the range (50 x mean |error|, normalised; the
-    estimate clamped to the range as the oracle's grid is)."""
-    truth = response["truth"]
-    mae = lambda k: float(((truth + response[k]).clamp(-1.0, 1.0) - truth).abs().mean() * 50.0)  # noqa: E731
-    med = lambda k: float(response[k].median())  # noqa: E731
-    return {
-        "pooled_slope": response["pooled_slope"],
-        "median_slope": med("slope"),
-        "median_cosine": med("cosine"),
-        "median_engine_response": med("engine_response"),
-        "median_prior_response": med("prior_response"),
-        "median_residual": med("residual"),
-        "linear_mae_pct_prior_response": mae("linear_error_prior"),
-        "linear_mae_pct_engine_response": mae("linear_error_engine"),
-        "restart_error_m": response["restart_error"],
-    }
+        return ParamResponse(
+            engine=(engine(centre + shift) - engine(centre - shift)) / (2 * delta),
+            prior=(prior(centre + shift) - prior(centre - shift)) / (2 * delta),
+            residual=prior(truth) - recorded,
+            truth=truth[:, param],
+            restart_error=restart_error,
+            movable=~kinematic,
+        )
