@@ -13,7 +13,7 @@ from omegaconf import DictConfig
 
 from vgpl.checkpoint import init_weights, load_stage, scene_of
 from vgpl.data.schema import DatasetError
-from vgpl.data.trajectories import Rollouts, TrajectoryDataModule, ground_truth_grouping, load_split
+from vgpl.data.trajectories import Rollouts, TrajectoryDataModule, load_split, true_window
 from vgpl.eval.error_breakdown import error_breakdown
 from vgpl.eval.rollout import future_mse, rollout
 from vgpl.eval.preview import write_gif
@@ -41,14 +41,10 @@ def evaluate_rollouts(
     if start + h + n_steps > test.positions.shape[1]:
         raise ValueError(f"eval: {start_frame} + {observed} observed + {n_steps} predicted frames exceed the {test.positions.shape[1]}-frame rollouts")
     n = test.positions.shape[0] if max_rollouts is None else min(max_rollouts, test.positions.shape[0])
-    frames = slice(start, start + h + n_steps)
-    positions = test.positions[:n, frames]
-    planes = scene.planes_at(test.actions[:n, frames])
-    grouping = ground_truth_grouping(test).expand(n, -1, -1)
-    rigidness = test.rigid.float().expand(n, -1)
+    positions, grouping, rigidness, params, planes, kinematic = true_window(scene, test, start, h + n_steps, n)
     model.eval()
     with torch.no_grad():
-        pred = rollout(model, positions, grouping, rigidness, test.params[:n], planes, torch.as_tensor(scene.kinematic), n_steps)
+        pred = rollout(model, positions, grouping, rigidness, params, planes, kinematic, n_steps)
     truth = positions[:, h:]
     breakdown = error_breakdown(pred, truth, torch.as_tensor(scene.instance), test.params[:n], n_steps, list(scene.param_names))
     return future_mse(pred, truth) | {f"breakdown@{n_steps}": breakdown}, pred, truth
