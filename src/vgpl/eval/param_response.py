@@ -22,6 +22,7 @@ from dataclasses import dataclass
 import torch
 
 from vgpl.data.trajectories import Rollouts, true_window
+from vgpl.eval.one_step import slope
 from vgpl.eval.rollout import rollout
 from vgpl.sim.scene import RolloutSample, Scene
 
@@ -81,7 +82,7 @@ class ParamResponse:
             "residual": _dot(e, e).sqrt(),
             "linear_error_prior": -_dot(e, r_p) / pp,
             "linear_error_engine": -_dot(e, r_e) / ee,
-            "pooled_slope": float(pe.sum() / ee.sum()),
+            "pooled_slope": slope(r_p, r_e),
         }
 
     def summary(self, particles: torch.Tensor | None = None) -> dict[str, float]:

@@ -46,7 +46,7 @@ def evaluate_rollouts(
     with torch.no_grad():
         pred = rollout(model, positions, grouping, rigidness, params, planes, kinematic, n_steps)
     truth = positions[:, h:]
-    breakdown = error_breakdown(pred, truth, torch.as_tensor(scene.instance), test.params[:n], n_steps, list(scene.param_names))
+    breakdown = error_breakdown(pred, truth, torch.as_tensor(scene.instance), params, n_steps, list(scene.param_names))
     return future_mse(pred, truth) | {f"breakdown@{n_steps}": breakdown}, pred, truth
 
 
