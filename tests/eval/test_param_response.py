@@ -33,6 +33,19 @@ def test_the_engine_restarted_from_a_recorded_frame_continues_the_recording_and_
     assert scene.n_steps == 30  # the restart works on a copy
 
 
+@pytest.mark.parametrize("env", ["fluid_cube", "rigid_fall"])
+def test_the_restart_is_exact_on_the_other_envs_and_their_parameter_moves_it(env):
+    """The fluid's and the rigid bodies' state is their positions and velocities too, so the
+    response of FluidCube's viscosity and RigidFall's gravity can be measured the same way."""
+    scene, traj = simulate(env, seeds=(0,), n_steps=14)
+    rollouts = _rollouts(scene, traj)
+    again = engine_from_frame(scene, rollouts, frame=4, n_steps=6, params=traj.params)
+    assert torch.allclose(again, traj.positions[:, 5:11], atol=1e-6)
+    other = torch.as_tensor(scene.param_high, dtype=traj.params.dtype)[None] if env == "fluid_cube" else traj.params * 1.2
+    moved = (engine_from_frame(scene, rollouts, frame=4, n_steps=6, params=other) - again).abs().amax(dim=(0, 2, 3))  # [6]
+    assert moved[-1] > 1e-3 and (moved[1:] >= moved[:-1]).all()
+
+
 def test_a_restart_without_velocities_or_past_the_end_is_refused():
     scene, traj = simulate("mass_rope", seeds=(0,), n_steps=12)
     with pytest.raises(ValueError, match=r"velocities=True"):
