@@ -1,0 +1,20 @@
+#!/usr/bin/env bash
+# Session 46 (CPU, 2 cores, AMD EPYC), issue 4, MassRope: the four-way study through the 2-frame
+# prior of session 45 (scripts/experiments/mass_rope_history2.sh), once its inference module has
+# its preset's 3,000 steps (resumed: ckpt_path=last ... max_time). The w/o-rigidness module starts
+# from the full one's weights (a fine-tune of MIN minutes: more training than the full module had,
+# so a win for VGPL is not one of steps).
+# Usage: bash scripts/experiments/mass_rope_h2_fourway.sh [MIN=25]   # about 1 h 10 min
+set -euo pipefail
+CK=checkpoints/s45_h2/mass_rope
+O=outputs/s46_fourway
+MIN=${1:-25}
+run() { python run.py env=mass_rope experiment=standard paths.ckpt_dir=$CK "$@"; }
+run task=evaluate ablation=full eval.error_sources=true hydra.run.dir=$O/full
+for A in no_params no_refinement; do
+  run task=evaluate ablation=$A eval.rigidness_curve_from=$O/full/metrics.json hydra.run.dir=$O/$A
+done
+[[ -f $CK/inference_no_rigidness/last.ckpt ]] || run task=train_inference ablation=no_rigidness \
+  model.inference.init_from=$CK/inference/last.ckpt model.inference.trainer.max_time=00:00:$MIN:00 hydra.run.dir=$O/train_no_rigidness
+run task=evaluate ablation=no_rigidness eval.error_sources=true hydra.run.dir=$O/no_rigidness
+python run.py task=report task.dir=$O hydra.run.dir=$O/report
