@@ -135,3 +135,13 @@ def test_exported_proposals_give_the_visual_priors_numbers_without_it():
     torch.testing.assert_close(read.params, by_video.params)
     with pytest.raises(ValueError, match="eval.proposals=exported: proposals of 7 frames, the evaluation reads 8"):
         evaluate_grounding(dyn, None, inf, scene, test, _ablation(), exported=tuple(x[:, :7] for x in exported), **KWARGS)
+
+
+def test_progress_bars_count_the_windows_and_the_curves_lengths_and_leave_the_numbers_alone(capsys):
+    models, r = _setup()
+    quiet = evaluate_grounding(*models, _ablation(), **KWARGS)
+    assert capsys.readouterr().err == ""
+    shown = evaluate_grounding(*models, _ablation(), progress=True, **KWARGS)
+    err = capsys.readouterr().err
+    assert "proposals" in err and "rigidness curve" in err and "8/8" in err  # T = 1 .. max_observed
+    _assert_same_metrics(shown.metrics, quiet.metrics)

@@ -6,6 +6,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import torch
+from tqdm.auto import tqdm
 
 from vgpl.data.proposals import propose_videos, truth_proposals
 from vgpl.data.trajectories import Rollouts
@@ -25,11 +26,11 @@ class GroundingResult:
 
 
 @torch.no_grad()
-def observed_proposals(visual, images: torch.Tensor, start: int, frames: int) -> tuple[torch.Tensor, torch.Tensor]:
+def observed_proposals(visual, images: torch.Tensor, start: int, frames: int, progress: bool = False) -> tuple[torch.Tensor, torch.Tensor]:
     """Proposals of frames [start, start + frames) exactly as the whole-video sliding window gives
     them, computed from the fewest frames. images uint8 [R, T, H, W, 3]."""
     first = max(0, start - visual.hparams.frames + 1)
-    pos, logits = propose_videos(visual, images[:, first : start + frames])
+    pos, logits = propose_videos(visual, images[:, first : start + frames], progress=progress)
     return pos[:, start - first :], logits[:, start - first :]
 
 
@@ -50,7 +51,7 @@ def evaluate_grounding(dynamics, visual, inference, scene, test: Rollouts, ablat
                        max_observed: int = 20, start_frame: int = 0, seed: int = 0, chunk: int = 8,
                        curve_rollouts: int | None = None, truth_noise_std: float = 0.0,
                        rigidness_curve: dict | None = None, trace_sources: bool = False,
-                       exported: tuple[torch.Tensor, torch.Tensor] | None = None) -> GroundingResult:
+                       exported: tuple[torch.Tensor, torch.Tensor] | None = None, progress: bool = False) -> GroundingResult:
     """Infer from ``observed`` frames of each test video (from ``start_frame``), roll ``n_steps`` on.
     The inference module runs on ``chunk`` videos at a time (bounded memory; same numbers).
     ``visual=None`` replaces the visual prior by the recorded particles plus ``truth_noise_std``
@@ -65,6 +66,8 @@ def evaluate_grounding(dynamics, visual, inference, scene, test: Rollouts, ablat
     these proposals (the three ablations that infer rigidness share it): it is reported instead of
     measured again. ``trace_sources`` also rolls the prior with each input taken from the truth in
     turn (``error_sources``: start positions, velocities, G, Q, P), a diagnostic of the future error.
+    ``progress`` shows bars over the visual prior's windows and the rigidness curve's lengths (the
+    two long parts: on 2 CPU cores the curve over 20 MassRope videos took 10+ minutes).
     """
     for m in (dynamics, visual, inference):
         if m is not None:
@@ -89,7 +92,7 @@ def evaluate_grounding(dynamics, visual, inference, scene, test: Rollouts, ablat
         proposals, logits = truth_proposals(test.positions[:, start_frame : start_frame + t_max], test.instance, int(test.rigid.shape[0]),
                                             truth_noise_std, noise)
     else:
-        proposals, logits = observed_proposals(visual, test.images, start_frame, t_max)
+        proposals, logits = observed_proposals(visual, test.images, start_frame, t_max, progress)
     seen = slice(start_frame, start_frame + observed)
     truth_seen = test.positions[:, seen]
     gen = torch.Generator().manual_seed(seed)
@@ -136,7 +139,8 @@ def evaluate_grounding(dynamics, visual, inference, scene, test: Rollouts, ablat
         for name, prob in mean_per_type(at_observed, types).items():
             metrics[f"rigidness_prob@{observed}/{name}"] = float(prob)
         if rigidness_curve is None:
-            curve = rigidness_against_length(inference, proposals[:curve_rollouts], logits[:curve_rollouts], kinematic, test.rigid, types, chunk)
+            curve = rigidness_against_length(inference, proposals[:curve_rollouts], logits[:curve_rollouts], kinematic, test.rigid, types, chunk,
+                                             progress)
         else:
             curve = {name: list(values) for name, values in rigidness_curve.items()}
             if set(curve) != set(types) or any(len(v) != t_max for v in curve.values()):
@@ -147,12 +151,12 @@ def evaluate_grounding(dynamics, visual, inference, scene, test: Rollouts, ablat
 
 @torch.no_grad()
 def rigidness_against_length(inference, proposals: torch.Tensor, logits: torch.Tensor, kinematic: torch.Tensor, rigid: torch.Tensor,
-                             types, chunk: int = 8) -> dict:
+                             types, chunk: int = 8, progress: bool = False) -> dict:
     """The mean probability of the correct rigidness label per object type (``types`` names each
     instance) when the inference module sees the first T = 1 .. T_max frames: type -> [T_max].
     proposals [R, T_max, N, 3], logits [R, T_max, N, M], rigid [M] (bool)."""
     probs = []
-    for t in range(1, proposals.shape[1] + 1):
+    for t in tqdm(range(1, proposals.shape[1] + 1), desc="rigidness curve", unit="T", disable=not progress):
         # all 100 videos at T = 20 at once made 17M proposal edges, 10 GB per activation, and
         # ran memory-bound for over half an hour on 2 cores
         p, lg = proposals[:, :t], logits[:, :t]

@@ -111,7 +111,8 @@ def evaluate(cfg: DictConfig) -> dict:
                                 cfg.eval.get("max_observed", 20), cfg.env.get("start_frame", 0), cfg.seed,
                                 curve_rollouts=cfg.eval.get("curve_rollouts"), truth_noise_std=noise_std,
                                 rigidness_curve=None if reused is None else reused_rigidness_curve(reused, measured_on),
-                                trace_sources=bool(cfg.eval.get("error_sources", False)), exported=exported)
+                                trace_sources=bool(cfg.eval.get("error_sources", False)), exported=exported,
+                                progress=bool(cfg.data.get("progress", True)))
     record = {"env": env, "method": "vgpl", "ablation": cfg.ablation.name, "n_test": int(test.positions.shape[0]),
               "observed": observed, "proposals": source, "proposals_noise_std": noise_std,
               "checkpoints": {k: str(v) for k, v in paths.items() if v is not None}, **result.metrics, "rigidness_curve": result.rigidness_curve}
