@@ -4,7 +4,7 @@
 # its preset's 3,000 steps (resumed: ckpt_path=last ... max_time). The w/o-rigidness module starts
 # from the full one's weights (a fine-tune of MIN minutes: more training than the full module had,
 # so a win for VGPL is not one of steps).
-# Usage: bash scripts/experiments/mass_rope_h2_fourway.sh [MIN=25]   # about 1 h 10 min
+# Usage: bash scripts/experiments/mass_rope_h2_fourway.sh [MIN=25]   # 59 min with 25 (session 46)
 set -euo pipefail
 CK=checkpoints/s45_h2/mass_rope
 O=outputs/s46_fourway
