@@ -5,9 +5,11 @@
 # from the full one's weights (a fine-tune of MIN minutes: more training than the full module had,
 # so a win for VGPL is not one of steps).
 # Usage: bash scripts/experiments/mass_rope_h2_fourway.sh [MIN=25]   # 59 min with 25 (session 46)
+#   CK=<ckpt_dir> O=<output dir> bash ...   study another module through the same prior (session 47:
+#   CK=checkpoints/s46_h2_long/mass_rope O=outputs/s47_fourway, the module continued to 6k steps)
 set -euo pipefail
-CK=checkpoints/s45_h2/mass_rope
-O=outputs/s46_fourway
+CK=${CK:-checkpoints/s45_h2/mass_rope}
+O=${O:-outputs/s46_fourway}
 MIN=${1:-25}
 run() { python run.py env=mass_rope experiment=standard paths.ckpt_dir=$CK "$@"; }
 run task=evaluate ablation=full eval.error_sources=true hydra.run.dir=$O/full
