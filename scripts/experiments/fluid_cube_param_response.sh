@@ -11,7 +11,7 @@
 set -euo pipefail
 O=outputs/fluid_cube_param_response
 run() { python run.py env=fluid_cube experiment=standard "$@"; }
-[[ -d data/standard/fluid_cube/test ]] || run task=generate hydra.run.dir=$O/generate          # 12.8 min, 1000 rendered videos
+[[ -d data/standard/fluid_cube/test ]] || run task=generate hydra.run.dir=$O/generate          # 12.8-17.5 min, 1000 rendered videos (17.5 in session 47)
 for H in 4 2; do
   CK=checkpoints/fluid_cube_h$H
   [[ -f $CK/fluid_cube/dynamics/last.ckpt ]] || run task=train_dynamics trainer.precision=bf16-mixed paths.ckpt_dir=$CK/fluid_cube \
