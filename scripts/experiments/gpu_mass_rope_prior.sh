@@ -24,14 +24,8 @@
 # Locally (smoke): TRAIN_S=20 GEN_N=20 VAL=50 bash scripts/experiments/gpu_mass_rope_prior.sh
 set -uo pipefail
 TRAIN_S=${TRAIN_S:-330}; GEN_N=${GEN_N:-1000}; ROUND=${ROUND:-1}; VAL=${VAL:-2000}  # validate every VAL steps (batch 16 has 6,525 a pass)
-OUT=${OUT:-/tmp/gpu_out}; mkdir -p "$OUT" outputs/gpu_logs
-export PYTHONPATH=$PWD/src:$PWD/.carry/site${PYTHONPATH:+:$PYTHONPATH} PYTHONUNBUFFERED=1
-PY=$(command -v python3)
-clock() { printf '00:00:%02d:%02d' $(( $1 / 60 )) $(( $1 % 60 )); }  # seconds -> trainer.max_time
+source "$(dirname "$0")/device_preamble.sh"  # OUT, PYTHONPATH with .carry/site, PY, clock, stamp, nvidia-smi log
 RUN=("$PY" run.py env=mass_rope experiment=standard seed=0)  # an array: timeout cannot run a shell function
-t0=$SECONDS; stamp() { echo "[t=$((SECONDS - t0))s] $*"; }
-nvidia-smi --query-gpu=name,memory.total --format=csv,noheader 2>/dev/null
-(nvidia-smi --query-gpu=timestamp,utilization.gpu,memory.used --format=csv -l 15 > outputs/gpu_logs/smi.csv 2>/dev/null &)
 
 # data: the standard MassRope set from seed 0, particles only (the prior reads no video)
 if [ "$ROUND" = 1 ]; then

@@ -16,14 +16,8 @@
 #   EXPORT_EXTRA="model.inference.max_rollouts=10 eval.max_rollouts=10" bash scripts/experiments/gpu_visual_scale.sh
 set -uo pipefail
 VIS_S=${VIS_S:-270}; INF_S=${INF_S:-330}; GEN=${GEN:-1}; VIS_EXTRA=${VIS_EXTRA:-}; EXPORT_EXTRA=${EXPORT_EXTRA:-}
-OUT=${OUT:-/tmp/gpu_out}; mkdir -p "$OUT" outputs/gpu_logs
-export PYTHONPATH=$PWD/src:$PWD/.carry/site${PYTHONPATH:+:$PYTHONPATH} PYTHONUNBUFFERED=1
-PY=$(command -v python3)
-clock() { printf '00:00:%02d:%02d' $(( $1 / 60 )) $(( $1 % 60 )); }  # seconds -> trainer.max_time
+source "$(dirname "$0")/device_preamble.sh"  # OUT, PYTHONPATH with .carry/site, PY, clock, stamp, nvidia-smi log
 RUN=("$PY" run.py env=rigid_fall experiment=standard seed=0)  # an array: timeout cannot run a shell function
-t0=$SECONDS; stamp() { echo "[t=$((SECONDS - t0))s] $*"; }
-nvidia-smi --query-gpu=name,memory.total --format=csv,noheader 2>/dev/null
-(nvidia-smi --query-gpu=timestamp,utilization.gpu,memory.used --format=csv -l 15 > outputs/gpu_logs/smi.csv 2>/dev/null &)
 
 # data: the standard RigidFall set from seed 0 (session 36's shards, regenerated)
 if [ "$GEN" = 1 ]; then
