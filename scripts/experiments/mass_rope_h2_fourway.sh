@@ -7,7 +7,8 @@
 # Usage: bash scripts/experiments/mass_rope_h2_fourway.sh [MIN=25]   # 59 min with 25 (session 46)
 #   CK=<ckpt_dir> O=<output dir> bash ...   study another module through the same prior (session 47:
 #   CK=checkpoints/s46_h2_long/mass_rope O=outputs/s47_fourway with MIN=20, the module continued to
-#   5,750 steps; 55 min)
+#   5,750 steps; 55 min. Session 48: CK=checkpoints/s48_module/mass_rope O=outputs/s48_fourway with MIN=12,
+#   the module through the H100-trained prior; 50 min)
 set -euo pipefail
 CK=${CK:-checkpoints/s45_h2/mass_rope}
 O=${O:-outputs/s46_fourway}
