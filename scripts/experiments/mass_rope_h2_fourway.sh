@@ -9,11 +9,14 @@
 #   CK=checkpoints/s46_h2_long/mass_rope O=outputs/s47_fourway with MIN=20, the module continued to
 #   5,750 steps; 55 min. Session 48: CK=checkpoints/s48_module/mass_rope O=outputs/s48_fourway with MIN=12,
 #   the module through the H100-trained prior; 50 min)
+#   D=<data dir> reads proposals exported elsewhere (session 49: D=data/s49 CK=checkpoints/s49/mass_rope, the
+#   50-minute visual prior's proposals; default data/standard)
 set -euo pipefail
 CK=${CK:-checkpoints/s45_h2/mass_rope}
 O=${O:-outputs/s46_fourway}
+D=${D:-data/standard}
 MIN=${1:-25}
-run() { python run.py env=mass_rope experiment=standard paths.ckpt_dir=$CK "$@"; }
+run() { python run.py env=mass_rope experiment=standard paths.data_dir=$D paths.ckpt_dir=$CK "$@"; }
 run task=evaluate ablation=full eval.error_sources=true hydra.run.dir=$O/full
 for A in no_params no_refinement; do
   run task=evaluate ablation=$A eval.rigidness_curve_from=$O/full/metrics.json hydra.run.dir=$O/$A
