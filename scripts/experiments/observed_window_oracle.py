@@ -16,7 +16,7 @@ the module's own P on the same videos. An amortised P well behind the refined fr
 P head, not its inputs, is the limit; a refined-frame fit no better than the module means the inputs are.
 
 Usage: python scripts/experiments/observed_window_oracle.py INFERENCE_CKPT [--root data/standard] [--videos 100] [--grid 9 --refine 9]
-(the dynamics prior is the one the module was trained through: INFERENCE_CKPT's stage directory's ``../dynamics/last.ckpt``)
+(the dynamics prior is the one the module was trained through: ``stage_checkpoint`` of its training config)
 """
 
 from __future__ import annotations
@@ -34,13 +34,14 @@ from vgpl.data.trajectories import true_window
 from vgpl.eval.grounding import infer_in_chunks
 from vgpl.eval.identifiability import oracle_param_sweep
 from vgpl.models.inference import InferenceModule
+from vgpl.tasks.stage import stage_checkpoint
 from vgpl.tasks.train_dynamics import load_dynamics
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("inference")
-    parser.add_argument("--dynamics", help="the prior (default: ../dynamics/last.ckpt beside the inference stage)")
+    parser.add_argument("--dynamics", help="the prior (default: the one the module trained through, stage_checkpoint(cfg, 'dynamics'))")
     parser.add_argument("--root", default="data/standard")
     parser.add_argument("--videos", type=int, default=100)
     parser.add_argument("--observed", type=int, default=10)
@@ -52,7 +53,7 @@ def main() -> None:
     began = time.time()
     module, cfg = load_stage(args.inference, InferenceModule)
     module.eval()
-    dynamics, _ = load_dynamics(args.dynamics or str(Path(args.inference).parent.parent / "dynamics" / "last.ckpt"))
+    dynamics, _ = load_dynamics(args.dynamics or str(stage_checkpoint(cfg, "dynamics")))
     dynamics.eval()
     scene, start = scene_of(cfg), int(cfg.env.get("start_frame", 0))
     videos, proposals = split_with_proposals(args.root, scene.name, "test")
