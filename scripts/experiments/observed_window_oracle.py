@@ -53,7 +53,7 @@ def main() -> None:
     began = time.time()
     module, cfg = load_stage(args.inference, InferenceModule)
     module.eval()
-    dynamics, _ = load_dynamics(args.dynamics or str(stage_checkpoint(cfg, "dynamics")))
+    dynamics, _ = load_dynamics(args.dynamics or str(stage_checkpoint(cfg, "dynamics")), env=cfg.env.name)  # a prior of another env is refused
     dynamics.eval()
     scene, start = scene_of(cfg), int(cfg.env.get("start_frame", 0))
     videos, proposals = split_with_proposals(args.root, scene.name, "test")

@@ -91,6 +91,17 @@ def test_refining_around_each_scenes_best_resolves_like_a_four_times_finer_grid(
     assert torch.equal(fine["loss_curve"], coarse["loss_curve"])  # the curve stays the coarse grid's
 
 
+def test_rolling_the_scenes_in_chunks_gives_the_same_sweep():
+    params = torch.tensor([[-10.9], [-5.2], [-14.9], [-7.1], [-12.3]])
+    positions, planes, kinematic = _scenes(params)
+    whole = oracle_param_sweep(Falling(), positions, None, None, params, planes, kinematic, n_steps=8, grid=9, refine=5, chunk=5)
+    chunked = oracle_param_sweep(Falling(), positions, None, None, params, planes, kinematic, n_steps=8, grid=9, refine=5, chunk=2)  # 2 + 2 + 1
+    for key in ("oracle_params", "oracle_param_mae_pct", "loss_curve"):
+        assert torch.allclose(whole[key], chunked[key], atol=1e-6), key
+    with pytest.raises(ValueError, match="chunk=0"):
+        oracle_param_sweep(Falling(), positions, None, None, params, planes, kinematic, n_steps=8, chunk=0)
+
+
 @pytest.mark.parametrize("refine", [1, -2])
 def test_a_refinement_of_one_value_is_refused(refine):
     with pytest.raises(ValueError, match=rf"refine={refine} \(task.param_grid_refine or task.identifiability.refine\), expected 0"):
