@@ -100,6 +100,10 @@ def test_rolling_the_scenes_in_chunks_gives_the_same_sweep():
         assert torch.allclose(whole[key], chunked[key], atol=1e-6), key
     with pytest.raises(ValueError, match="chunk=0"):
         oracle_param_sweep(Falling(), positions, None, None, params, planes, kinematic, n_steps=8, chunk=0)
+    whole = param_gradient_agreement(Falling(), positions, None, None, params, planes, kinematic, n_steps=8, chunk=5)
+    chunked = param_gradient_agreement(Falling(), positions, None, None, params, planes, kinematic, n_steps=8, chunk=2)
+    assert torch.allclose(whole["median_abs_grad"], chunked["median_abs_grad"]) and torch.equal(whole["counted"], chunked["counted"])
+    assert torch.allclose(whole["agreement"], chunked["agreement"], equal_nan=True)
 
 
 @pytest.mark.parametrize("refine", [1, -2])

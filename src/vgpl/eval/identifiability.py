@@ -19,10 +19,19 @@ import torch
 from vgpl.eval.rollout import rollout
 
 
-def rollout_l1_per_scene(model, positions, grouping, rigidness, params, planes, kinematic, n_steps: int) -> torch.Tensor:
+def rollout_l1_per_scene(model, positions, grouping, rigidness, params, planes, kinematic, n_steps: int,
+                         chunk: int | None = None) -> torch.Tensor:
     """[B]: the mean L1 (units of the displacement std, the inference module's loss) of the rollout
     from the first H true frames of ``positions`` [B, H + n_steps, N, 3] against the rest, over the
-    movable particles; ``params`` [B, P] physical."""
+    movable particles; ``params`` [B, P] physical. ``chunk``: scenes rolled at a time (None: all;
+    the same numbers, each scene's rollout is its own)."""
+    if chunk is not None and chunk < 1:
+        raise ValueError(f"rollout_l1_per_scene: chunk={chunk}, expected at least 1 scene per rollout batch")
+    b = positions.shape[0]
+    if chunk is not None and chunk < b:
+        pick = lambda x, s: None if x is None else x[s]  # noqa: E731  (the stand-in priors of the tests have no G, Q)
+        return torch.cat([rollout_l1_per_scene(model, positions[s], pick(grouping, s), pick(rigidness, s), params[s], planes[s], kinematic, n_steps)
+                          for s in (slice(i, i + chunk) for i in range(0, b, chunk))])
     h = model.hparams.history
     pred = rollout(model, positions, grouping, rigidness, params, planes, kinematic, n_steps)
     return ((pred - positions[:, h : h + n_steps]) / model.disp_std).abs()[:, :, ~kinematic].mean((1, 2, 3))
@@ -54,8 +63,6 @@ def oracle_param_sweep(model, positions, grouping, rigidness, params, planes, ki
     """
     if grid < 2:
         raise ValueError(f"oracle_param_sweep: grid={grid}, expected at least 2 values")
-    if chunk < 1:
-        raise ValueError(f"oracle_param_sweep: chunk={chunk}, expected at least 1 scene per rollout batch")
     if refine == 1 or refine < 0:
         raise ValueError(f"oracle_param_sweep: refine={refine} (task.param_grid_refine or task.identifiability.refine), "
                          "expected 0 (the grid alone) or at least 2 values")
@@ -64,18 +71,13 @@ def oracle_param_sweep(model, positions, grouping, rigidness, params, planes, ki
     offsets = torch.linspace(-step, step, refine) if refine else None
     truth = model.normalise_params(params)  # [B, P] in [-1, 1]
 
-    parts = [slice(i, i + chunk) for i in range(0, truth.shape[0], chunk)]
-    pick = lambda x, s: None if x is None else x[s]  # noqa: E731  (the stand-in priors of the tests have no G, Q)
-
     def best(j: int, candidates: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """candidates [B, C] normalised values of parameter j -> (argmin [B], losses [B, C])."""
         losses = []
         for c in candidates.unbind(1):
             guess = truth.clone()
             guess[:, j] = c
-            physical = model.to_physical(guess)
-            losses.append(torch.cat([rollout_l1_per_scene(model, positions[s], pick(grouping, s), pick(rigidness, s), physical[s], planes[s],
-                                                          kinematic, n_steps) for s in parts]))
+            losses.append(rollout_l1_per_scene(model, positions, grouping, rigidness, model.to_physical(guess), planes, kinematic, n_steps, chunk))
         loss = torch.stack(losses, 1)
         return candidates.gather(1, loss.argmin(1, keepdim=True))[:, 0], loss
 
@@ -104,7 +106,7 @@ def oracle_param_sweep(model, positions, grouping, rigidness, params, planes, ki
 
 
 def param_gradient_agreement(model, positions, grouping, rigidness, params, planes, kinematic, n_steps: int,
-                             probes=(-0.75, -0.25, 0.25, 0.75), margin: float = 0.1) -> dict:
+                             probes=(-0.75, -0.25, 0.25, 0.75), margin: float = 0.1, chunk: int = 16) -> dict:
     """Does the rollout L1's gradient in each parameter point to its true value?
 
     For parameter j and each probe value v (normalised, the other parameters at their true values),
@@ -112,7 +114,7 @@ def param_gradient_agreement(model, positions, grouping, rigidness, params, plan
     -dL/dP_j has the sign of (truth_j - v); scenes whose truth is within ``margin`` of v are left
     out (their sign is the noise of a minimum). The prior's weights get no gradient.
 
-    Args: as ``oracle_param_sweep``. Returns: ``agreement`` [P, V] (share of the counted scenes that
+    Args: as ``oracle_param_sweep`` (``chunk`` too). Returns: ``agreement`` [P, V] (share of the counted scenes that
     agree; a zero gradient does not agree), ``counted`` [P, V] (scenes counted), ``median_abs_grad``
     [P, V] (over all scenes, per normalised unit of P) and ``probes`` [V].
     """
@@ -123,7 +125,7 @@ def param_gradient_agreement(model, positions, grouping, rigidness, params, plan
         for k, v in enumerate(probes.tolist()):
             value = torch.full((params.shape[0],), v, requires_grad=True)
             guess = torch.cat([truth[:, :j], value[:, None], truth[:, j + 1 :]], 1)
-            loss = rollout_l1_per_scene(model, positions, grouping, rigidness, model.to_physical(guess), planes, kinematic, n_steps)
+            loss = rollout_l1_per_scene(model, positions, grouping, rigidness, model.to_physical(guess), planes, kinematic, n_steps, chunk)
             # a prior blind to P leaves the loss outside the graph: its gradient is zero
             grad = torch.autograd.grad(loss.sum(), value)[0] if loss.requires_grad else torch.zeros_like(value)
             away = (truth[:, j] - v).abs() > margin
