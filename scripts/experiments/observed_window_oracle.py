@@ -16,6 +16,7 @@ the module's own P on the same videos. An amortised P well behind the refined fr
 P head, not its inputs, is the limit; a refined-frame fit no better than the module means the inputs are.
 
 Usage: python scripts/experiments/observed_window_oracle.py INFERENCE_CKPT [--root data/standard] [--videos 100] [--grid 9 --refine 9]
+       [--window-pool last|mean] (default: the pool the module was trained on)
 (the dynamics prior is the one the module was trained through: ``stage_checkpoint`` of its training config)
 """
 
@@ -27,13 +28,16 @@ import time
 from pathlib import Path
 
 import torch
+from omegaconf import OmegaConf
 
 from vgpl.checkpoint import load_stage, scene_of
 from vgpl.data.grounding import split_with_proposals
 from vgpl.data.trajectories import true_window
+from vgpl.data.window_pool import pool_windows
 from vgpl.eval.grounding import infer_in_chunks
 from vgpl.eval.identifiability import oracle_param_sweep
 from vgpl.models.inference import InferenceModule
+from vgpl.tasks.evaluate import trained_window_pool
 from vgpl.tasks.stage import stage_checkpoint
 from vgpl.tasks.train_dynamics import load_dynamics
 
@@ -47,6 +51,7 @@ def main() -> None:
     parser.add_argument("--observed", type=int, default=10)
     parser.add_argument("--grid", type=int, default=9)
     parser.add_argument("--refine", type=int, default=9)
+    parser.add_argument("--window-pool", choices=["last", "mean"], help="how the observed frames are read from the visual windows (default: the module's)")
     parser.add_argument("--json", help="write the numbers and per-video estimates here")
     args = parser.parse_args()
     torch.set_grad_enabled(False)
@@ -56,17 +61,19 @@ def main() -> None:
     dynamics, _ = load_dynamics(args.dynamics or str(stage_checkpoint(cfg, "dynamics")), env=cfg.env.name)  # a prior of another env is refused
     dynamics.eval()
     scene, start = scene_of(cfg), int(cfg.env.get("start_frame", 0))
-    videos, proposals = split_with_proposals(args.root, scene.name, "test")
+    pool = trained_window_pool(OmegaConf.create({"eval": {"window_pool": args.window_pool}}), cfg)
+    videos, proposals = split_with_proposals(args.root, scene.name, "test", pool)
     n, t = min(args.videos, len(videos.rollout_ids)), args.observed
     seen = slice(start, start + t)
     positions, grouping, rigidness, params, planes, kinematic = true_window(scene, videos, start, t, n)
-    inferred = infer_in_chunks(module, proposals.positions[:n, seen], proposals.logits[:n, seen], kinematic, chunk=10)
+    observed = pool_windows(proposals.positions[:n, seen], None if proposals.slots is None else proposals.slots[:n, seen], pool)
+    inferred = infer_in_chunks(module, observed, proposals.logits[:n, seen], kinematic, chunk=10)
     versions = {"truth": positions,
-                "proposals": torch.where(kinematic[None, None, :, None], positions, proposals.positions[:n, seen]),
+                "proposals": torch.where(kinematic[None, None, :, None], positions, observed),
                 "refined": torch.where(kinematic[None, None, :, None], positions, inferred["positions"])}
     truth = dynamics.normalise_params(params)
     module_error = (inferred["params_normalised"] - truth) * 50  # % of the range
-    rows = {"checkpoint": args.inference, "env": scene.name, "videos": n, "observed": t, "grid": args.grid, "refine": args.refine,
+    rows = {"checkpoint": args.inference, "env": scene.name, "videos": n, "observed": t, "window_pool": pool, "grid": args.grid, "refine": args.refine,
             "module_mae_pct": module_error.abs().mean(0).tolist(), "module_bias_pct": module_error.mean(0).tolist()}
     for name, frames in versions.items():
         sweep = oracle_param_sweep(dynamics, frames, grouping, rigidness, params, planes, kinematic, t - dynamics.hparams.history,

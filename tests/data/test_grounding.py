@@ -136,3 +136,26 @@ def test_exported_proposals_are_taken_by_rollout_id_and_refused_by_file_name(tmp
     truth = write_proposals(tmp_path / "truth.h5", Proposals(positions, logits, torch.tensor([7, 3, 5]), {"source": "truth"}))
     with pytest.raises(DatasetError, match=r"truth.h5: truth proposals"):
         exported_proposals(truth, torch.tensor([5]), frames=10)
+
+
+def test_pooled_windows_read_the_slots_and_a_visual_file_without_them_is_refused(tmp_path):
+    """model.inference.window_pool=mean: each training window's proposals are pooled over the
+    visual windows that end within it; a visual prior's file exported before slots were kept is
+    refused by name, the recorded particles (no windows) are read as they are."""
+    from vgpl.data.grounding import GroundingDataModule, proposals_path
+    from vgpl.data.proposals import write_proposals
+    from vgpl.data.window_pool import pool_windows
+
+    scene, rollouts, proposals = _data(proposal_frames=32)
+    proposals.slots = torch.rand(2, 32, 4, scene.n_particles, 3)
+    ds = GroundingWindows(rollouts, proposals, scene, observed=10, horizon=5, start_frame=2, span=20, window_pool="mean")
+    r, s = ds.index[7]
+    torch.testing.assert_close(ds[7]["proposals"], pool_windows(proposals.positions[r, s : s + 10], proposals.slots[r, s : s + 10], "mean"))
+    assert not torch.allclose(ds[7]["proposals"], proposals.positions[r, s : s + 10])
+    with pytest.raises(ValueError, match="model.inference.window_pool='first'"):
+        GroundingWindows(rollouts, proposals, scene, observed=10, horizon=5, window_pool="first")
+    for split in ("train", "test"):
+        write_proposals(proposals_path(tmp_path, scene.name, split), Proposals(proposals.positions, proposals.logits, torch.arange(2), {"source": "visual"}))
+    dm = GroundingDataModule(str(tmp_path), scene, observed=10, horizon=5, window_pool="mean")
+    with pytest.raises(DatasetError, match=r"rigid_fall/proposals/train.h5: no 'slots' .*window_pool='mean' needs them; re-export"):
+        dm.setup()

@@ -145,3 +145,26 @@ def test_progress_bars_count_the_windows_and_the_curves_lengths_and_leave_the_nu
     err = capsys.readouterr().err
     assert "proposals" in err and "rigidness curve" in err and "8/8" in err  # T = 1 .. max_observed
     _assert_same_metrics(shown.metrics, quiet.metrics)
+
+
+def test_pooled_windows_give_the_same_numbers_from_the_videos_and_from_the_exported_slots():
+    """window_pool=mean: the observed frames (and every T of the rigidness curve) are read from
+    the visual windows that end within them, whether the prior runs here or its export is read;
+    the pooled proposals are what the refinement's 'before' is measured on."""
+    from vgpl.data.proposals import propose_windows
+    from vgpl.data.window_pool import pool_windows
+
+    (dyn, visual, inf, scene, test), _ = _setup()
+    paper = evaluate_grounding(dyn, visual, inf, scene, test, _ablation(), **KWARGS)
+    by_video = evaluate_grounding(dyn, visual, inf, scene, test, _ablation(), window_pool="mean", **KWARGS)
+    exported = propose_windows(visual, test.images[:, :20])
+    read = evaluate_grounding(dyn, None, inf, scene, dataclasses.replace(test, images=None), _ablation(), exported=exported,
+                              window_pool="mean", **KWARGS)
+    _assert_same_metrics(read.metrics, by_video.metrics)
+    assert by_video.rigidness_curve == pytest.approx(read.rigidness_curve)
+    pooled = pool_windows(exported[0][:, :6], exported[2][:, :6], "mean")
+    before = ((pooled - test.positions[:, :6]) ** 2).mean() * 1e4  # rigid_fall has no kinematic particles
+    assert by_video.metrics["refine_mse_x1e4_before"] == pytest.approx(float(before), rel=1e-5)
+    assert by_video.metrics["refine_mse_x1e4_before"] != pytest.approx(paper.metrics["refine_mse_x1e4_before"], rel=1e-3)
+    with pytest.raises(ValueError, match="window_pool='mean' needs the windows' slots, the exported proposals have none"):
+        evaluate_grounding(dyn, None, inf, scene, test, _ablation(), exported=exported[:2], window_pool="mean", **KWARGS)

@@ -276,3 +276,33 @@ def test_the_ablations_that_infer_rigidness_share_one_measured_curve(tiny, tmp_p
         evaluate(config(tmp, "task=evaluate", "ablation=no_params", f"eval.rigidness_curve_from={full}", "eval.curve_rollouts=3",
                         f"paths.output_dir={tmp_path}/bad"))
     assert not (tmp_path / "bad").exists()  # refused before anything is written
+
+
+def test_the_window_pool_is_the_modules_unless_the_evaluation_overrides_it():
+    from omegaconf import OmegaConf
+
+    from vgpl.tasks.evaluate import trained_window_pool
+
+    unset, trained = OmegaConf.create({"eval": {"window_pool": None}}), OmegaConf.create({"model": {"inference": {"window_pool": "mean"}}})
+    assert trained_window_pool(unset, trained) == "mean"
+    assert trained_window_pool(unset, OmegaConf.create({"model": {"inference": {}}})) == "last"  # a module trained before the option
+    assert trained_window_pool(OmegaConf.create({"eval": {"window_pool": "last"}}), trained) == "last"
+    with pytest.raises(ValueError, match="eval.window_pool='max': expected 'last'"):
+        trained_window_pool(OmegaConf.create({"eval": {"window_pool": "max"}}), trained)
+
+
+def test_pooled_windows_read_from_the_export_give_the_visual_priors_numbers(tiny, tmp_path):
+    """The pipeline's export keeps every window's slots: eval.window_pool=mean reads them from the
+    file (no visual prior) with the numbers the visual prior gives over the videos, and the
+    evaluation records the pool; the pipeline's own module was trained on 'last' and says so."""
+    tmp, result = tiny
+    full = next(r for r in result["records"] if r["method"] == "vgpl" and r["ablation"] == "full")
+    assert full["window_pool"] == "last"
+    by_video = evaluate(config(tmp, "task=evaluate", "eval.window_pool=mean", f"paths.output_dir={tmp_path}/video"))
+    read = evaluate(config(tmp, "task=evaluate", "eval.window_pool=mean", "eval.proposals=exported", f"ckpt.visual={tmp_path}/no_visual.ckpt",
+                           f"paths.output_dir={tmp_path}/exported"))
+    assert by_video["window_pool"] == read["window_pool"] == "mean"
+    for key, value in by_video.items():
+        if key.startswith(("param_mae", "future_mse", "refine_mse", "rigidness_prob")):
+            assert read[key] == pytest.approx(value, rel=1e-4, abs=1e-6), key
+    assert by_video["refine_mse_x1e4_before"] != pytest.approx(full["refine_mse_x1e4_before"], rel=1e-3)

@@ -12,6 +12,7 @@ from torch.utils.data import DataLoader, Dataset
 from vgpl.data.proposals import Proposals, read_proposals
 from vgpl.data.schema import DatasetError
 from vgpl.data.trajectories import NormStats, Rollouts, load_split
+from vgpl.data.window_pool import check_window_pool, pool_windows
 from vgpl.sim.scene import Scene
 
 
@@ -19,11 +20,15 @@ def proposals_path(root: str | Path, env: str, split: str) -> Path:
     return Path(root) / env / "proposals" / f"{split}.h5"
 
 
-def split_with_proposals(root: str | Path, env: str, split: str) -> tuple[Rollouts, Proposals]:
+def split_with_proposals(root: str | Path, env: str, split: str, window_pool: str = "last") -> tuple[Rollouts, Proposals]:
     """The split's first R rollouts and their exported proposals (which cover the first R), refused
-    by file name when the proposals' rollout_ids are not those rollouts'."""
+    by file name when the proposals' rollout_ids are not those rollouts', or when ``window_pool``
+    needs the windows' slots and the visual prior's file has none."""
     path = proposals_path(root, env, split)
     proposals = read_proposals(path)
+    if window_pool != "last" and proposals.slots is None and proposals.attrs.get("source", "visual") == "visual":
+        raise DatasetError(f"{path}: no 'slots' (exported before they were kept), window_pool={window_pool!r} needs them; "
+                           "re-export with task=export_proposals")
     rollouts = load_split(root, env, split, max_rollouts=len(proposals.rollout_ids))
     if not torch.equal(rollouts.rollout_ids, proposals.rollout_ids):
         raise DatasetError(f"{path}: 'rollout_ids' do not match the dataset's; re-export with task=export_proposals")
@@ -34,11 +39,13 @@ class GroundingWindows(Dataset):
     """Item: proposals [T, N, 3], logits [T, N, M], positions [T + k, N, 3] (truth), planes
     [T + k, K, 4], params [P], kinematic [N]. Windows start at ``start_frame`` and every
     ``stride``-th frame after it, up to ``start_frame + span`` when ``span`` is given. The proposals
-    may cover only the first frames of each video, as far as the last window's observed frames."""
+    may cover only the first frames of each video, as far as the last window's observed frames.
+    ``window_pool`` reads each window's proposals from the visual prior's windows (``pool_windows``)."""
 
     def __init__(self, rollouts: Rollouts, proposals: Proposals, scene: Scene, observed: int, horizon: int,
-                 start_frame: int = 0, stride: int = 1, span: int | None = None) -> None:
+                 start_frame: int = 0, stride: int = 1, span: int | None = None, window_pool: str = "last") -> None:
         self.r, self.p, self.observed, self.horizon = rollouts, proposals, observed, horizon
+        self.window_pool = check_window_pool(window_pool, "model.inference.window_pool")
         n_rollouts, n_frames = rollouts.positions.shape[:2]
         last = n_frames - observed - horizon
         if last < start_frame:
@@ -60,7 +67,8 @@ class GroundingWindows(Dataset):
         r, s = self.index[k]
         seen, full = slice(s, s + self.observed), slice(s, s + self.observed + self.horizon)
         return {
-            "proposals": self.p.positions[r, seen], "logits": self.p.logits[r, seen],
+            "proposals": pool_windows(self.p.positions[r, seen], None if self.p.slots is None else self.p.slots[r, seen], self.window_pool),
+            "logits": self.p.logits[r, seen],
             "positions": self.r.positions[r, full], "planes": self.planes[r, full],
             "params": self.r.params[r], "kinematic": self.kinematic,
         }
@@ -69,10 +77,11 @@ class GroundingWindows(Dataset):
 class GroundingDataModule(L.LightningDataModule):
     def __init__(self, root: str, scene: Scene, observed: int = 10, horizon: int = 5, batch_size: int = 2,
                  start_frame: int = 0, stride: int = 1, span: int | None = None, num_workers: int = 0,
-                 val_span: int | None = None) -> None:
+                 val_span: int | None = None, window_pool: str = "last") -> None:
         """Training windows start every ``stride`` frames within ``span`` frames of ``start_frame``;
         validation windows (on the test split) every ``observed`` frames within ``val_span`` (None:
-        ``span``; 0: only the evaluation's window, one per test video)."""
+        ``span``; 0: only the evaluation's window, one per test video). ``window_pool``: as
+        GroundingWindows."""
         super().__init__()
         if val_span is not None and val_span < 0:
             raise ValueError(f"model.inference.val_window_span={val_span}: expected a frame count >= 0, or null for window_span")
@@ -80,21 +89,23 @@ class GroundingDataModule(L.LightningDataModule):
         self.root, self.scene = root, scene
         self.observed, self.horizon, self.batch_size = observed, horizon, batch_size
         self.start_frame, self.stride, self.num_workers = start_frame, stride, num_workers
+        self.window_pool = check_window_pool(window_pool, "model.inference.window_pool")
         self.train: Rollouts | None = None
 
     def setup(self, stage: str | None = None) -> None:
         if self.train is None:
             env = self.scene.name
-            self.train, self.train_proposals = split_with_proposals(self.root, env, "train")
-            self.test, self.test_proposals = split_with_proposals(self.root, env, "test")
+            self.train, self.train_proposals = split_with_proposals(self.root, env, "train", self.window_pool)
+            self.test, self.test_proposals = split_with_proposals(self.root, env, "test", self.window_pool)
             if self.train_proposals.positions.shape[2] != self.scene.n_particles:
                 raise DatasetError(f"{proposals_path(self.root, env, 'train')}: {self.train_proposals.positions.shape[2]} particles, env {env} has {self.scene.n_particles}")
             self.stats = NormStats.from_rollouts(self.train, torch.as_tensor(self.scene.kinematic))
 
     def train_dataloader(self) -> DataLoader:
-        ds = GroundingWindows(self.train, self.train_proposals, self.scene, self.observed, self.horizon, self.start_frame, self.stride, self.span)
+        ds = GroundingWindows(self.train, self.train_proposals, self.scene, self.observed, self.horizon, self.start_frame, self.stride, self.span, self.window_pool)
         return DataLoader(ds, batch_size=self.batch_size, shuffle=True, num_workers=self.num_workers, drop_last=len(ds) > self.batch_size)
 
     def val_dataloader(self) -> DataLoader:
-        ds = GroundingWindows(self.test, self.test_proposals, self.scene, self.observed, self.horizon, self.start_frame, self.observed, self.val_span)
+        ds = GroundingWindows(self.test, self.test_proposals, self.scene, self.observed, self.horizon, self.start_frame, self.observed, self.val_span,
+                             self.window_pool)
         return DataLoader(ds, batch_size=self.batch_size, shuffle=False, num_workers=self.num_workers)

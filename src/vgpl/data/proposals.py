@@ -1,8 +1,10 @@
 """Particle proposals of the VisualPrior over whole videos, and their HDF5 file.
 
 File (one per split, written atomically): positions float32 [R, T, N, 3] (metres), grouping
-logits float32 [R, T, N, M], rollout_ids int64 [R]; attrs: env, split, visual_checkpoint,
-source ("visual", or "truth" for ``truth_proposals``), noise_std (metres), format_version.
+logits float32 [R, T, N, M], rollout_ids int64 [R]; the visual prior's also slots float32
+[R, T, F, N, 3] (every window's prediction of every frame it holds, NaN where no window:
+``vgpl.data.window_pool``); attrs: env, split, visual_checkpoint, source ("visual", or "truth"
+for ``truth_proposals``), noise_std (metres), format_version.
 """
 
 from __future__ import annotations
@@ -28,15 +30,19 @@ class Proposals:
     logits: torch.Tensor  # [R, T, N, M]
     rollout_ids: torch.Tensor  # [R]
     attrs: dict
+    slots: torch.Tensor | None = None  # [R, T, F, N, 3]: frame t as the window starting at t - k predicts it (NaN: no window); None: not kept
 
 
 @torch.no_grad()
-def propose_videos(model, images: torch.Tensor, batch_size: int = 64, progress: bool = False) -> tuple[torch.Tensor, torch.Tensor]:
-    """Slide the model's F-frame window one frame at a time over each video and keep the last
-    frame of every window (the paper's temporal protocol); the first F - 1 frames come from the
-    first window. Windows run on the model's device; the outputs are on the CPU.
+def propose_windows(model, images: torch.Tensor, batch_size: int = 64, progress: bool = False) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Slide the model's F-frame window one frame at a time over each video. Keeps the last frame
+    of every window (the paper's temporal protocol; the first F - 1 frames come from the first
+    window) and every window's prediction of every frame it holds. Windows run on the model's
+    device; the outputs are on the CPU.
 
-    Args: images uint8 [R, T, H, W, 3]. Returns positions [R, T, N, 3], logits [R, T, N, M].
+    Args: images uint8 [R, T, H, W, 3]. Returns positions [R, T, N, 3], logits [R, T, N, M] (the
+    paper's), slots [R, T, F, N, 3] (slot k of frame t: the window starting at frame t - k; NaN
+    where that window is not in the video).
     """
     model.eval()
     f = model.hparams.frames
@@ -46,16 +52,24 @@ def propose_videos(model, images: torch.Tensor, batch_size: int = 64, progress: 
     starts = [(i, s) for i in range(r) for s in range(t - f + 1)]
     pos = torch.zeros(r, t, model.hparams.n_particles, 3)
     logits = torch.zeros(r, t, model.hparams.n_particles, model.hparams.n_instances)
+    slots = torch.full((r, t, f, model.hparams.n_particles, 3), float("nan"))
+    held = torch.arange(f)
     for k in tqdm(range(0, len(starts), batch_size), desc="proposals", disable=not progress, unit="batch"):
         chunk = starts[k : k + batch_size]
         frames = torch.stack([images[i, s : s + f] for i, s in chunk]).to(model.device)
         p, g = (x.cpu() for x in model.propose(frames))
         for (i, s), pi, gi in zip(chunk, p, g):
+            slots[i, s + held, held] = pi
             if s == 0:
                 pos[i, :f], logits[i, :f] = pi, gi
             else:
                 pos[i, s + f - 1], logits[i, s + f - 1] = pi[-1], gi[-1]
-    return pos, logits
+    return pos, logits, slots
+
+
+def propose_videos(model, images: torch.Tensor, batch_size: int = 64, progress: bool = False) -> tuple[torch.Tensor, torch.Tensor]:
+    """The paper's proposals of ``propose_windows``: positions [R, T, N, 3], logits [R, T, N, M]."""
+    return propose_windows(model, images, batch_size, progress)[:2]
 
 
 def proposal_source(source: str, noise_std: float, source_option: str, noise_option: str, exported: bool = False) -> tuple[str, float]:
@@ -102,6 +116,8 @@ def write_proposals(path: str | Path, proposals: Proposals) -> Path:
         f.create_dataset("positions", data=proposals.positions.numpy().astype(np.float32), chunks=(1, *proposals.positions.shape[1:]))
         f.create_dataset("logits", data=proposals.logits.numpy().astype(np.float32), chunks=(1, *proposals.logits.shape[1:]))
         f.create_dataset("rollout_ids", data=proposals.rollout_ids.numpy().astype(np.int64))
+        if proposals.slots is not None:
+            f.create_dataset("slots", data=proposals.slots.numpy().astype(np.float32), chunks=(1, *proposals.slots.shape[1:]))
         for k, v in {**proposals.attrs, "format_version": PROPOSALS_VERSION}.items():
             f.attrs[k] = v
     os.replace(tmp, path)
@@ -118,11 +134,14 @@ def read_proposals(path: str | Path) -> Proposals:
             missing = [k for k in ("positions", "logits", "rollout_ids") if k not in f]
             if missing:
                 raise DatasetError(f"{path}: key '{missing[0]}' missing; not a vgpl proposals file")
-            out = Proposals(torch.as_tensor(f["positions"][()]), torch.as_tensor(f["logits"][()]), torch.as_tensor(f["rollout_ids"][()]), dict(f.attrs))
+            out = Proposals(torch.as_tensor(f["positions"][()]), torch.as_tensor(f["logits"][()]), torch.as_tensor(f["rollout_ids"][()]), dict(f.attrs),
+                            torch.as_tensor(f["slots"][()]) if "slots" in f else None)
     except OSError as e:
         raise DatasetError(f"{path}: not a readable HDF5 file ({e})") from e
     if out.positions.shape[:3] != out.logits.shape[:3] or out.positions.shape[0] != out.rollout_ids.shape[0]:
         raise DatasetError(f"{path}: 'positions' {tuple(out.positions.shape)}, 'logits' {tuple(out.logits.shape)} and 'rollout_ids' disagree")
+    if out.slots is not None and (out.slots.shape[:2] != out.positions.shape[:2] or out.slots.shape[3:] != out.positions.shape[2:]):
+        raise DatasetError(f"{path}: 'slots' {tuple(out.slots.shape)} do not match 'positions' {tuple(out.positions.shape)} (expected [R, T, F, N, 3])")
     return out
 
 
@@ -144,4 +163,5 @@ def exported_proposals(path: str | Path, rollout_ids: torch.Tensor, frames: int)
         raise DatasetError(f"{path}: proposals of {prop.positions.shape[1]} frames, the evaluation reads {frames} (start_frame + "
                            "max(observed, eval.max_observed)); re-export with a larger model.inference.window_span")
     take = torch.tensor([row[int(i)] for i in rollout_ids.tolist()], dtype=torch.long)
-    return Proposals(prop.positions[take, :frames], prop.logits[take, :frames], prop.rollout_ids[take], prop.attrs)
+    return Proposals(prop.positions[take, :frames], prop.logits[take, :frames], prop.rollout_ids[take], prop.attrs,
+                     None if prop.slots is None else prop.slots[take, :frames])

@@ -8,8 +8,9 @@ from dataclasses import dataclass, field
 import torch
 from tqdm.auto import tqdm
 
-from vgpl.data.proposals import propose_videos, truth_proposals
+from vgpl.data.proposals import propose_windows, truth_proposals
 from vgpl.data.trajectories import Rollouts
+from vgpl.data.window_pool import check_window_pool, pool_windows
 from vgpl.eval.error_sources import RolloutInputs, error_sources
 from vgpl.eval.metrics import correct_rigidness_prob, midpoint_error_pct, param_signed_error_pct, position_mse_x1e4
 from vgpl.eval.rollout import future_mse, rollout
@@ -26,12 +27,12 @@ class GroundingResult:
 
 
 @torch.no_grad()
-def observed_proposals(visual, images: torch.Tensor, start: int, frames: int, progress: bool = False) -> tuple[torch.Tensor, torch.Tensor]:
-    """Proposals of frames [start, start + frames) exactly as the whole-video sliding window gives
-    them, computed from the fewest frames. images uint8 [R, T, H, W, 3]."""
+def observed_proposals(visual, images: torch.Tensor, start: int, frames: int, progress: bool = False) -> tuple[torch.Tensor, ...]:
+    """Proposals [R, frames, N, 3], logits and slots [R, frames, F, N, 3] of frames [start, start + frames)
+    exactly as the whole-video sliding window gives them, computed from the fewest frames (slots
+    of windows that end after the last of them are NaN). images uint8 [R, T, H, W, 3]."""
     first = max(0, start - visual.hparams.frames + 1)
-    pos, logits = propose_videos(visual, images[:, first : start + frames], progress=progress)
-    return pos[:, start - first :], logits[:, start - first :]
+    return tuple(x[:, start - first :] for x in propose_windows(visual, images[:, first : start + frames], progress=progress))
 
 
 def proposed_frames(observed: int, max_observed: int, n_frames: int, start_frame: int = 0) -> int:
@@ -51,13 +52,16 @@ def evaluate_grounding(dynamics, visual, inference, scene, test: Rollouts, ablat
                        max_observed: int = 20, start_frame: int = 0, seed: int = 0, chunk: int = 8,
                        curve_rollouts: int | None = None, truth_noise_std: float = 0.0,
                        rigidness_curve: dict | None = None, trace_sources: bool = False,
-                       exported: tuple[torch.Tensor, torch.Tensor] | None = None, progress: bool = False) -> GroundingResult:
+                       exported: tuple[torch.Tensor, ...] | None = None, progress: bool = False, window_pool: str = "last") -> GroundingResult:
     """Infer from ``observed`` frames of each test video (from ``start_frame``), roll ``n_steps`` on.
     The inference module runs on ``chunk`` videos at a time (bounded memory; same numbers).
     ``visual=None`` replaces the visual prior by the recorded particles plus ``truth_noise_std``
     metres of Gaussian noise (``truth_proposals``, a diagnostic: no video is read). ``exported``:
-    the visual prior's proposals [R, T, N, 3] and logits [R, T, N, M] of frames [0, T) as
-    task=export_proposals wrote them (``exported_proposals``), used instead of ``visual``.
+    the visual prior's proposals [R, T, N, 3], logits [R, T, N, M] and, where kept, slots
+    [R, T, F, N, 3] of frames [0, T) as task=export_proposals wrote them (``exported_proposals``),
+    used instead of ``visual``. ``window_pool`` reads every observed window (the T = ``observed``
+    one and the rigidness curve's) from the visual prior's windows as ``pool_windows`` does; it
+    must be the pool the inference module was trained on.
 
     ``ablation`` has booleans rigidness, refinement, params. The rigidness curve is measured for
     T = 1 .. ``max_observed`` when the ablation infers rigidness, on the first ``curve_rollouts``
@@ -82,23 +86,29 @@ def evaluate_grounding(dynamics, visual, inference, scene, test: Rollouts, ablat
         raise ValueError(f"eval.observed={observed} is shorter than the dynamics prior's history of {h} frames")
     if curve_rollouts is not None and curve_rollouts < 1:
         raise ValueError(f"eval.curve_rollouts={curve_rollouts}: expected at least 1 test video, or null for all")
+    check_window_pool(window_pool, "window_pool")
     t_max = proposed_frames(observed, max_observed, n_frames, start_frame)
+    slots = None  # the recorded particles have no windows to pool
     if exported is not None:  # the visual prior's, exported elsewhere (eval.proposals=exported)
         if exported[0].shape[1] < start_frame + t_max:
             raise ValueError(f"eval.proposals=exported: proposals of {exported[0].shape[1]} frames, the evaluation reads {start_frame + t_max}")
-        proposals, logits = (x[:, start_frame : start_frame + t_max] for x in exported)
+        proposals, logits, *kept = (None if x is None else x[:, start_frame : start_frame + t_max] for x in exported)
+        slots = kept[0] if kept else None
+        if window_pool != "last" and slots is None:
+            raise ValueError(f"eval.proposals=exported: window_pool={window_pool!r} needs the windows' slots, the exported proposals have none")
     elif visual is None:  # a perfect visual prior, or a noisy one (eval.proposals=truth)
         noise = torch.Generator().manual_seed(seed + 1)
         proposals, logits = truth_proposals(test.positions[:, start_frame : start_frame + t_max], test.instance, int(test.rigid.shape[0]),
                                             truth_noise_std, noise)
     else:
-        proposals, logits = observed_proposals(visual, test.images, start_frame, t_max, progress)
+        proposals, logits, slots = observed_proposals(visual, test.images, start_frame, t_max, progress)
+    seen_proposals = pool_windows(proposals[:, :observed], None if slots is None else slots[:, :observed], window_pool)
     seen = slice(start_frame, start_frame + observed)
     truth_seen = test.positions[:, seen]
     gen = torch.Generator().manual_seed(seed)
     # a few videos at a time: all 100 FluidCube videos at T = 10 make ~5 GB per activation. The
     # generator is consumed in video order, so no_params' uniform draws do not depend on the chunk
-    out = infer_in_chunks(inference, proposals[:, :observed], logits[:, :observed], kinematic, chunk, refinement=bool(ablation.refinement),
+    out = infer_in_chunks(inference, seen_proposals, logits[:, :observed], kinematic, chunk, refinement=bool(ablation.refinement),
                            rigidness=bool(ablation.rigidness), params=bool(ablation.params), generator=gen)
     metrics = {}
     # Table 1: parameters
@@ -109,8 +119,8 @@ def evaluate_grounding(dynamics, visual, inference, scene, test: Rollouts, ablat
     floor = midpoint_error_pct(test.params, test.param_low, test.param_high).mean(1)  # the same videos, a constant guess
     metrics["midpoint_param_mae_pct"], metrics["midpoint_param_mae_pct_std"] = float(floor.mean()), float(floor.std())
     # refinement
-    metrics["refine_mse_x1e4_before"] = position_mse_x1e4(proposals[:, :observed], truth_seen, movable)
-    refined = out["positions"] if ablation.refinement else infer_in_chunks(inference, proposals[:, :observed], logits[:, :observed], kinematic, chunk)["positions"]
+    metrics["refine_mse_x1e4_before"] = position_mse_x1e4(seen_proposals, truth_seen, movable)
+    refined = out["positions"] if ablation.refinement else infer_in_chunks(inference, seen_proposals, logits[:, :observed], kinematic, chunk)["positions"]
     metrics["refine_mse_x1e4_after"] = position_mse_x1e4(refined, truth_seen, movable)
     # grouping accuracy of the visual prior
     metrics["grouping_accuracy"] = float((out["grouping"].argmax(-1) == test.instance[None]).float().mean())
@@ -140,7 +150,7 @@ def evaluate_grounding(dynamics, visual, inference, scene, test: Rollouts, ablat
             metrics[f"rigidness_prob@{observed}/{name}"] = float(prob)
         if rigidness_curve is None:
             curve = rigidness_against_length(inference, proposals[:curve_rollouts], logits[:curve_rollouts], kinematic, test.rigid, types, chunk,
-                                             progress)
+                                             progress, None if slots is None else slots[:curve_rollouts], window_pool)
         else:
             curve = {name: list(values) for name, values in rigidness_curve.items()}
             if set(curve) != set(types) or any(len(v) != t_max for v in curve.values()):
@@ -151,15 +161,17 @@ def evaluate_grounding(dynamics, visual, inference, scene, test: Rollouts, ablat
 
 @torch.no_grad()
 def rigidness_against_length(inference, proposals: torch.Tensor, logits: torch.Tensor, kinematic: torch.Tensor, rigid: torch.Tensor,
-                             types, chunk: int = 8, progress: bool = False) -> dict:
+                             types, chunk: int = 8, progress: bool = False, slots: torch.Tensor | None = None,
+                             window_pool: str = "last") -> dict:
     """The mean probability of the correct rigidness label per object type (``types`` names each
     instance) when the inference module sees the first T = 1 .. T_max frames: type -> [T_max].
-    proposals [R, T_max, N, 3], logits [R, T_max, N, M], rigid [M] (bool)."""
+    proposals [R, T_max, N, 3], logits [R, T_max, N, M], rigid [M] (bool); slots [R, T_max, F, N, 3]
+    or None, pooled over the windows that end within each T (``pool_windows``)."""
     probs = []
     for t in tqdm(range(1, proposals.shape[1] + 1), desc="rigidness curve", unit="T", disable=not progress):
         # all 100 videos at T = 20 at once made 17M proposal edges, 10 GB per activation, and
         # ran memory-bound for over half an hour on 2 cores
-        p, lg = proposals[:, :t], logits[:, :t]
+        p, lg = pool_windows(proposals[:, :t], None if slots is None else slots[:, :t], window_pool), logits[:, :t]
         q = torch.cat([inference.rigidness(p[i : i + chunk], lg[i : i + chunk], kinematic) for i in range(0, len(p), chunk)])
         probs.append(correct_rigidness_prob(q, rigid))  # [R, M]
     probs = torch.stack(probs, -1)  # [R, M, T_max]

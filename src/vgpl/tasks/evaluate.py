@@ -15,13 +15,14 @@ import logging
 from pathlib import Path
 
 import torch
-from omegaconf import DictConfig
+from omegaconf import DictConfig, OmegaConf
 from torch.utils.tensorboard import SummaryWriter
 
 from vgpl.checkpoint import load_stage, scene_of
 from vgpl.data.grounding import proposals_path
 from vgpl.data.proposals import exported_proposals, proposal_source
 from vgpl.data.trajectories import load_split
+from vgpl.data.window_pool import check_window_pool
 from vgpl.eval import figures
 from vgpl.eval.error_breakdown import error_breakdown, rollout_mse_x1e4
 from vgpl.eval.error_sources import error_sources_rows
@@ -93,6 +94,7 @@ def evaluate(cfg: DictConfig) -> dict:
     visual = load_stage(paths["visual"], VisualPrior, env=env, n_particles=n)[0] if by_video else None
     inference, inference_cfg = load_stage(paths["inference"], InferenceModule, env=env, n_particles=n)
     warn_other_prior(paths["inference"], inference_cfg, paths["dynamics"])
+    window_pool = trained_window_pool(cfg, inference_cfg)
     test = load_split(cfg.data.root, env, "test", images=by_video, max_rollouts=cfg.eval.get("max_rollouts"))
     if test.positions.shape[2] != n:
         raise ValueError(f"{cfg.data.root}/{env}/test: {test.positions.shape[2]} particles, the checkpoints expect {n}")
@@ -104,17 +106,17 @@ def evaluate(cfg: DictConfig) -> dict:
         prop = exported_proposals(paths["proposals"], test.rollout_ids, frames)
         if prop.positions.shape[2] != n:
             raise ValueError(f"{paths['proposals']}: proposals of {prop.positions.shape[2]} particles, the checkpoints expect {n}")
-        exported = (prop.positions, prop.logits)
-    measured_on = curve_fingerprint(cfg, paths, source, noise_std, int(test.positions.shape[0]), observed) if cfg.ablation.rigidness else None
+        exported = (prop.positions, prop.logits, prop.slots)
+    measured_on = curve_fingerprint(cfg, paths, source, noise_std, int(test.positions.shape[0]), observed, window_pool) if cfg.ablation.rigidness else None
     reused = cfg.eval.get("rigidness_curve_from") if cfg.ablation.rigidness else None
     result = evaluate_grounding(dynamics, visual, inference, scene, test, cfg.ablation, observed, cfg.eval.n_steps,
                                 cfg.eval.get("max_observed", 20), cfg.env.get("start_frame", 0), cfg.seed,
                                 curve_rollouts=cfg.eval.get("curve_rollouts"), truth_noise_std=noise_std,
                                 rigidness_curve=None if reused is None else reused_rigidness_curve(reused, measured_on),
                                 trace_sources=bool(cfg.eval.get("error_sources", False)), exported=exported,
-                                progress=bool(cfg.data.get("progress", True)))
+                                progress=bool(cfg.data.get("progress", True)), window_pool=window_pool)
     record = {"env": env, "method": "vgpl", "ablation": cfg.ablation.name, "n_test": int(test.positions.shape[0]),
-              "observed": observed, "proposals": source, "proposals_noise_std": noise_std,
+              "observed": observed, "proposals": source, "proposals_noise_std": noise_std, "window_pool": window_pool,
               "checkpoints": {k: str(v) for k, v in paths.items() if v is not None}, **result.metrics, "rigidness_curve": result.rigidness_curve}
     if result.rigidness_curve:
         record["rigidness_curve_measured_on"] = measured_on
@@ -146,14 +148,22 @@ def evaluate(cfg: DictConfig) -> dict:
     return record
 
 
-def curve_fingerprint(cfg: DictConfig, paths: dict, source: str, noise_std: float, n_test: int, observed: int) -> dict:
+def trained_window_pool(cfg: DictConfig, inference_cfg: DictConfig) -> str:
+    """How the evaluation reads each observed window from the visual prior's windows: ``eval.window_pool``
+    where set, else the pool the inference module was trained on (its checkpoint's config; 'last', the
+    paper's, for modules trained before the option)."""
+    trained = OmegaConf.select(inference_cfg, "model.inference.window_pool", default="last")
+    return check_window_pool(cfg.eval.get("window_pool") or trained, "eval.window_pool")
+
+
+def curve_fingerprint(cfg: DictConfig, paths: dict, source: str, noise_std: float, n_test: int, observed: int, window_pool: str = "last") -> dict:
     """What the rigidness curve depends on: the visual and inference checkpoints' contents (sha256),
     the proposals, the test videos, the curve's videos and lengths, and the seed where it draws the
     proposals' noise."""
     digests = {k: hashlib.sha256(Path(v).read_bytes()).hexdigest() for k, v in paths.items() if k != "dynamics" and v is not None}
     return {"env": cfg.env.name, "data_root": str(cfg.data.root), "n_test": n_test, "start_frame": int(cfg.env.get("start_frame", 0)),
             "observed": observed, "max_observed": cfg.eval.get("max_observed", 20), "curve_rollouts": cfg.eval.get("curve_rollouts"),
-            "proposals": source, "proposals_noise_std": noise_std, "sha256": digests,
+            "proposals": source, "proposals_noise_std": noise_std, "window_pool": window_pool, "sha256": digests,
             "seed": cfg.seed if source == "truth" and noise_std > 0 else None}  # the seed draws only the noise of truth proposals
 
 

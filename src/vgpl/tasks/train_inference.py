@@ -29,7 +29,8 @@ def grounding_datamodule(cfg: DictConfig, scene) -> GroundingDataModule:
     """The inference module's windows as ``cfg.model.inference`` and ``cfg.env`` set them (not yet set up)."""
     spec = cfg.model.inference
     return GroundingDataModule(cfg.data.root, scene, spec.observed, spec.net.horizon, spec.batch_size, cfg.env.get("start_frame", 0),
-                               spec.window_stride, spec.get("window_span"), val_span=spec.get("val_window_span"))
+                               spec.window_stride, spec.get("window_span"), val_span=spec.get("val_window_span"),
+                               window_pool=spec.get("window_pool", "last"))
 
 
 def train_inference(cfg: DictConfig) -> dict:

@@ -14,7 +14,7 @@ from omegaconf import DictConfig
 
 from vgpl.checkpoint import load_stage, scene_of
 from vgpl.data.grounding import proposals_path
-from vgpl.data.proposals import Proposals, proposal_source, propose_videos, truth_proposals, write_proposals
+from vgpl.data.proposals import Proposals, proposal_source, propose_windows, truth_proposals, write_proposals
 from vgpl.data.shard import read_first_rollouts
 from vgpl.data.trajectories import load_split
 from vgpl.data.video import VideoDataModule
@@ -56,16 +56,16 @@ def train_visual(cfg: DictConfig) -> dict:
 def export_split(model: VisualPrior, root: str, env: str, split: str, checkpoint: str, max_rollouts: int | None = None, progress: bool = True,
                  max_frames: int | None = None) -> Path:
     """Proposals for the first ``max_frames`` frames (None: all) of the first ``max_rollouts``
-    rollouts of a split, shard by shard (bounded memory)."""
+    rollouts of a split, shard by shard (bounded memory), with every window's slots (``window_pool``)."""
     files = sorted((Path(root) / env / split).glob("shard_*.h5"))
     if not files:
         raise FileNotFoundError(f"{Path(root) / env / split}: no shard_*.h5 files (generate them with task=generate env={env})")
-    positions, logits, ids = [], [], []
+    positions, logits, slots, ids = [], [], [], []
     for _, shard in read_first_rollouts(files, max_rollouts, images=True, frames=max_frames):
-        p, g = propose_videos(model, torch.as_tensor(shard.images), progress=progress)
-        positions.append(p), logits.append(g), ids.append(torch.as_tensor(shard.rollout_ids))
+        p, g, k = propose_windows(model, torch.as_tensor(shard.images), progress=progress)
+        positions.append(p), logits.append(g), slots.append(k), ids.append(torch.as_tensor(shard.rollout_ids))
     prop = Proposals(torch.cat(positions), torch.cat(logits), torch.cat(ids),
-                     {"env": env, "split": split, "visual_checkpoint": checkpoint, "source": "visual", "noise_std": 0.0})
+                     {"env": env, "split": split, "visual_checkpoint": checkpoint, "source": "visual", "noise_std": 0.0}, torch.cat(slots))
     return write_proposals(proposals_path(root, env, split), prop)
 
 
