@@ -49,7 +49,7 @@ def main() -> None:
     pick = [ids.index(v) for v in args.videos]
     kinematic = torch.as_tensor(scene.kinematic)
     h, t, n = dynamics.hparams.history, args.observed, args.n_steps
-    proposals, logits = observed_proposals(visual, test.images[pick], start, t)
+    proposals, logits = observed_proposals(visual, test.images[pick], start, t)[:2]  # the paper's window_pool=last
     positions = test.positions[pick]
     seen = positions[:, start : start + t]
     frames = slice(start + t - h, start + t + n)

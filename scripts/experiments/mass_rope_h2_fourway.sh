@@ -11,10 +11,13 @@
 #   the module through the H100-trained prior; 50 min)
 #   D=<data dir> reads proposals exported elsewhere (session 49: D=data/s49 CK=checkpoints/s49/mass_rope, the
 #   50-minute visual prior's proposals; default data/standard)
+#   POOL=mean trains the w/o-rigidness module on window-pooled proposals (model.inference.window_pool; session 51:
+#   D=data/s51 CK=checkpoints/s51/mass_rope POOL=mean). The evaluations take each module's own pool from its checkpoint.
 set -euo pipefail
 CK=${CK:-checkpoints/s45_h2/mass_rope}
 O=${O:-outputs/s46_fourway}
 D=${D:-data/standard}
+POOL=${POOL:-last}
 MIN=${1:-25}
 run() { python run.py env=mass_rope experiment=standard paths.data_dir=$D paths.ckpt_dir=$CK "$@"; }
 run task=evaluate ablation=full eval.error_sources=true hydra.run.dir=$O/full
@@ -22,6 +25,7 @@ for A in no_params no_refinement; do
   run task=evaluate ablation=$A eval.rigidness_curve_from=$O/full/metrics.json hydra.run.dir=$O/$A
 done
 [[ -f $CK/inference_no_rigidness/last.ckpt ]] || run task=train_inference ablation=no_rigidness \
-  model.inference.init_from=$CK/inference/last.ckpt model.inference.trainer.max_time=00:00:$MIN:00 hydra.run.dir=$O/train_no_rigidness
+  model.inference.init_from=$CK/inference/last.ckpt model.inference.trainer.max_time=00:00:$MIN:00 model.inference.window_pool=$POOL \
+  hydra.run.dir=$O/train_no_rigidness
 run task=evaluate ablation=no_rigidness eval.error_sources=true hydra.run.dir=$O/no_rigidness
 python run.py task=report task.dir=$O hydra.run.dir=$O/report
