@@ -16,7 +16,8 @@ from vgpl.data.proposals import Proposals, read_proposals, write_proposals
 
 
 def merge(first: Proposals, rest: Proposals) -> Proposals:
-    """[R1 + R2', T, N, *] ordered by rollout id, T the shorter of the two; R2' = rest's rollouts not in first."""
+    """[R1 + R2', T, N, *] ordered by rollout id, T the shorter of the two; R2' = rest's rollouts not in first.
+    The windows' slots are kept where both files have them, dropped otherwise (window_pool=last only)."""
     if first.positions.shape[2:] != rest.positions.shape[2:] or first.logits.shape[3] != rest.logits.shape[3]:
         raise SystemExit(f"merge_proposals: particles/instances differ: {tuple(first.logits.shape[2:])} against {tuple(rest.logits.shape[2:])}")
     if first.attrs.get("env") != rest.attrs.get("env"):
@@ -27,9 +28,11 @@ def merge(first: Proposals, rest: Proposals) -> Proposals:
     order = ids.argsort()
     positions = torch.cat([first.positions[:, :frames], rest.positions[extra, :frames]])[order]
     logits = torch.cat([first.logits[:, :frames], rest.logits[extra, :frames]])[order]
+    both = first.slots is not None and rest.slots is not None  # window_pool=mean needs every video's
+    slots = torch.cat([first.slots[:, :frames], rest.slots[extra, :frames]])[order] if both else None
     attrs = dict(first.attrs) | {"visual_checkpoint": f"{first.attrs.get('visual_checkpoint')} ({len(first.rollout_ids)} videos) + "
                                                       f"{rest.attrs.get('visual_checkpoint')} ({int(extra.sum())} videos)"}
-    return Proposals(positions, logits, ids[order], attrs)
+    return Proposals(positions, logits, ids[order], attrs, slots)
 
 
 def main() -> None:
@@ -40,7 +43,8 @@ def main() -> None:
     args = parser.parse_args()
     merged = merge(read_proposals(args.first), read_proposals(args.rest))
     write_proposals(args.out, merged)
-    print(f"{args.out}: {merged.positions.shape[0]} videos, {merged.positions.shape[1]} frames ({merged.attrs['visual_checkpoint']})")
+    kept = "with" if merged.slots is not None else "without (a file had none: window_pool=last only)"
+    print(f"{args.out}: {merged.positions.shape[0]} videos, {merged.positions.shape[1]} frames, {kept} slots ({merged.attrs['visual_checkpoint']})")
 
 
 if __name__ == "__main__":

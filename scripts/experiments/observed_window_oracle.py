@@ -27,6 +27,7 @@ import json
 import time
 from pathlib import Path
 
+import numpy as np
 import torch
 from omegaconf import OmegaConf
 
@@ -66,7 +67,7 @@ def main() -> None:
     n, t = min(args.videos, len(videos.rollout_ids)), args.observed
     seen = slice(start, start + t)
     positions, grouping, rigidness, params, planes, kinematic = true_window(scene, videos, start, t, n)
-    observed = pool_windows(proposals.positions[:n, seen], None if proposals.slots is None else proposals.slots[:n, seen], pool)
+    observed = pool_windows(proposals.positions, proposals.slots, pool, np.s_[:n, seen])
     inferred = infer_in_chunks(module, observed, proposals.logits[:n, seen], kinematic, chunk=10)
     versions = {"truth": positions,
                 "proposals": torch.where(kinematic[None, None, :, None], positions, observed),

@@ -3,6 +3,7 @@ reading a frame after the window."""
 
 from __future__ import annotations
 
+import numpy as np
 import pytest
 import torch
 
@@ -48,6 +49,20 @@ def test_mean_averages_the_windows_that_end_within_the_observed_frames():
     slots[0, 0] = float("nan")  # none at all: the paper's proposal
     assert pool_windows(positions, slots, "mean")[0, 0, 0, 0] == -1.0
     assert torch.equal(pool_windows(positions, slots, "last"), positions) and torch.equal(pool_windows(positions, None, "mean"), positions)
+    for no_slots in (None, slots):  # a bad pool is refused before the paper's shortcut, with or without slots
+        with pytest.raises(ValueError, match="window_pool='median'"):
+            pool_windows(positions, no_slots, "median")
+
+
+def test_an_index_picks_the_observed_window_out_of_positions_and_slots_alike():
+    """pool_windows(p, s, pool, index) is pool_windows(p[index], s[index], pool): the frames after
+    the index's last are not read, whichever leading dimensions it picks."""
+    positions, slots = torch.rand(3, 9, 5, 3), torch.rand(3, 9, 4, 5, 3)
+    slots[:, -3:] = float("nan")
+    for index in (np.s_[:, :6], np.s_[1, 2:8], np.s_[:2, 3:5]):
+        torch.testing.assert_close(pool_windows(positions, slots, "mean", index), pool_windows(positions[index], slots[index], "mean"))
+        assert torch.equal(pool_windows(positions, slots, "last", index), positions[index])
+        assert torch.equal(pool_windows(positions, None, "mean", index), positions[index])
     with pytest.raises(ValueError, match="pool='median': expected 'last'.*or 'mean'"):
         pool_windows(positions, slots, "median")
 
@@ -72,3 +87,51 @@ def test_slots_survive_the_proposals_file_and_a_mismatch_names_it(tmp_path):
     write_proposals(path, Proposals(positions, logits, torch.arange(2), {}, slots[:, :5]))
     with pytest.raises(DatasetError, match=r"train.h5: 'slots' \(2, 5, 4, 5, 3\) do not match 'positions' \(2, 6, 5, 3\)"):
         read_proposals(path)
+
+
+def test_slots_are_read_only_for_the_pool_that_needs_them_and_a_visual_file_without_them_is_refused_by_name(tmp_path):
+    """read_proposals(path, window_pool): 'last' leaves the slots on disk, 'mean' reads them and
+    refuses a visual prior's file that has none (the recorded particles have no windows: read as
+    they are); None reads what the file holds. The export's reader for eval.proposals=exported
+    refuses the same way."""
+    from vgpl.data.proposals import exported_proposals
+
+    positions, logits, slots = torch.rand(2, 6, 5, 3), torch.rand(2, 6, 5, 2), torch.rand(2, 6, 4, 5, 3)
+    path = write_proposals(tmp_path / "test.h5", Proposals(positions, logits, torch.arange(2), {"source": "visual"}, slots))
+    assert read_proposals(path, "last").slots is None
+    torch.testing.assert_close(read_proposals(path, "mean").slots, slots)
+    torch.testing.assert_close(exported_proposals(path, torch.tensor([1]), 4, "mean").slots, slots[[1], :4])
+    old = write_proposals(tmp_path / "old.h5", Proposals(positions, logits, torch.arange(2), {"source": "visual"}))
+    assert read_proposals(old, "last").slots is None and read_proposals(old).slots is None
+    for read in (lambda: read_proposals(old, "mean"), lambda: exported_proposals(old, torch.tensor([1]), 4, "mean")):
+        with pytest.raises(DatasetError, match=r"old.h5: no 'slots' .*window_pool='mean' needs them; re-export with task=export_proposals"):
+            read()
+    truth = write_proposals(tmp_path / "truth.h5", Proposals(positions, logits, torch.arange(2), {"source": "truth"}))
+    assert read_proposals(truth, "mean").slots is None
+    with pytest.raises(ValueError, match="window_pool='median'"):
+        read_proposals(path, "median")
+
+
+def test_merged_training_proposals_keep_every_videos_slots():
+    """scripts/experiments/merge_proposals.py: the windows' slots follow their videos into the
+    merged file (window_pool=mean needs every video's), and are dropped where a file lacks them."""
+    import importlib.util
+    from pathlib import Path
+
+    script = Path(__file__).parents[2] / "scripts" / "experiments" / "merge_proposals.py"
+    spec = importlib.util.spec_from_file_location("merge_proposals", script)
+    merge_proposals = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(merge_proposals)
+
+    def prop(ids, frames, with_slots=True):
+        r = len(ids)
+        slots = torch.rand(r, frames, 4, 5, 3) if with_slots else None
+        return Proposals(torch.rand(r, frames, 5, 3), torch.rand(r, frames, 5, 2), torch.tensor(ids), {"env": "mass_rope"}, slots)
+
+    first, rest = prop([4, 1], 8), prop([1, 0, 3], 6)
+    merged = merge_proposals.merge(first, rest)
+    assert merged.rollout_ids.tolist() == [0, 1, 3, 4] and merged.slots.shape == (4, 6, 4, 5, 3)
+    for row, (source, k) in enumerate([(rest, 1), (first, 1), (rest, 2), (first, 0)]):  # video 1 from FIRST
+        torch.testing.assert_close(merged.slots[row], source.slots[k, :6])
+        torch.testing.assert_close(merged.positions[row], source.positions[k, :6])
+    assert merge_proposals.merge(first, prop([0], 6, with_slots=False)).slots is None

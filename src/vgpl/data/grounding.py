@@ -25,10 +25,7 @@ def split_with_proposals(root: str | Path, env: str, split: str, window_pool: st
     by file name when the proposals' rollout_ids are not those rollouts', or when ``window_pool``
     needs the windows' slots and the visual prior's file has none."""
     path = proposals_path(root, env, split)
-    proposals = read_proposals(path)
-    if window_pool != "last" and proposals.slots is None and proposals.attrs.get("source", "visual") == "visual":
-        raise DatasetError(f"{path}: no 'slots' (exported before they were kept), window_pool={window_pool!r} needs them; "
-                           "re-export with task=export_proposals")
+    proposals = read_proposals(path, window_pool)
     rollouts = load_split(root, env, split, max_rollouts=len(proposals.rollout_ids))
     if not torch.equal(rollouts.rollout_ids, proposals.rollout_ids):
         raise DatasetError(f"{path}: 'rollout_ids' do not match the dataset's; re-export with task=export_proposals")
@@ -67,7 +64,7 @@ class GroundingWindows(Dataset):
         r, s = self.index[k]
         seen, full = slice(s, s + self.observed), slice(s, s + self.observed + self.horizon)
         return {
-            "proposals": pool_windows(self.p.positions[r, seen], None if self.p.slots is None else self.p.slots[r, seen], self.window_pool),
+            "proposals": pool_windows(self.p.positions, self.p.slots, self.window_pool, (r, seen)),
             "logits": self.p.logits[r, seen],
             "positions": self.r.positions[r, full], "planes": self.planes[r, full],
             "params": self.r.params[r], "kinematic": self.kinematic,

@@ -19,6 +19,7 @@ import torch
 from tqdm.auto import tqdm
 
 from vgpl.data.schema import DatasetError
+from vgpl.data.window_pool import check_window_pool
 
 PROPOSALS_VERSION = 1
 TRUTH_LOGIT = 20.0  # the true instance's logit in truth_proposals (0 elsewhere): softmax > 0.9999 on it
@@ -124,9 +125,17 @@ def write_proposals(path: str | Path, proposals: Proposals) -> Path:
     return path
 
 
-def read_proposals(path: str | Path) -> Proposals:
-    """Load a proposals file and check its keys and shapes (the caller matches its rollout_ids)."""
+def read_proposals(path: str | Path, window_pool: str | None = None) -> Proposals:
+    """Load a proposals file and check its keys and shapes (the caller matches its rollout_ids).
+
+    ``window_pool`` (``vgpl.data.window_pool``) says whether the windows' slots are read: None
+    reads whatever the file holds; ``last`` never reads them (MassRope's training slots are
+    68 MB, FluidCube's about 250 MB); ``mean`` needs them, and a visual prior's file without
+    them (exported before they were kept) is refused, naming the file.
+    """
     path = Path(path)
+    if window_pool is not None:
+        check_window_pool(window_pool, "window_pool")
     if not path.is_file():
         raise DatasetError(f"{path}: no proposals file (make it with task=export_proposals)")
     try:
@@ -134,8 +143,13 @@ def read_proposals(path: str | Path) -> Proposals:
             missing = [k for k in ("positions", "logits", "rollout_ids") if k not in f]
             if missing:
                 raise DatasetError(f"{path}: key '{missing[0]}' missing; not a vgpl proposals file")
-            out = Proposals(torch.as_tensor(f["positions"][()]), torch.as_tensor(f["logits"][()]), torch.as_tensor(f["rollout_ids"][()]), dict(f.attrs),
-                            torch.as_tensor(f["slots"][()]) if "slots" in f else None)
+            attrs = dict(f.attrs)
+            if window_pool == "mean" and "slots" not in f and attrs.get("source", "visual") == "visual":
+                raise DatasetError(f"{path}: no 'slots' (exported before they were kept), window_pool='mean' needs them; "
+                                   "re-export with task=export_proposals")
+            slots = torch.as_tensor(f["slots"][()]) if "slots" in f and window_pool != "last" else None
+            out = Proposals(torch.as_tensor(f["positions"][()]), torch.as_tensor(f["logits"][()]), torch.as_tensor(f["rollout_ids"][()]),
+                            attrs, slots)
     except OSError as e:
         raise DatasetError(f"{path}: not a readable HDF5 file ({e})") from e
     if out.positions.shape[:3] != out.logits.shape[:3] or out.positions.shape[0] != out.rollout_ids.shape[0]:
@@ -145,12 +159,12 @@ def read_proposals(path: str | Path) -> Proposals:
     return out
 
 
-def exported_proposals(path: str | Path, rollout_ids: torch.Tensor, frames: int) -> Proposals:
+def exported_proposals(path: str | Path, rollout_ids: torch.Tensor, frames: int, window_pool: str | None = None) -> Proposals:
     """The proposals a file holds for ``rollout_ids`` [R] (in that order), frames [0, ``frames``):
     what the visual prior that exported them gives over those videos, without that prior (it may
     be on another machine). Refused, naming the file, where it lacks a rollout or covers fewer
-    frames, or holds proposals that are not the visual prior's."""
-    prop = read_proposals(path)
+    frames, or holds proposals that are not the visual prior's; ``window_pool`` as read_proposals."""
+    prop = read_proposals(path, window_pool)
     source = str(prop.attrs.get("source", "visual"))
     if source != "visual":
         raise DatasetError(f"{path}: {source} proposals (task.source={source}); eval.proposals=exported evaluates the visual prior's")

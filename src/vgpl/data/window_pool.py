@@ -24,17 +24,20 @@ def check_window_pool(pool: str, option: str) -> str:
     return pool
 
 
-def pool_windows(positions: torch.Tensor, slots: torch.Tensor | None, pool: str) -> torch.Tensor:
-    """The proposals of one observed window of T frames.
+def pool_windows(positions: torch.Tensor, slots: torch.Tensor | None, pool: str, index=...) -> torch.Tensor:
+    """The proposals of one observed window of T frames: ``positions[index]`` pooled with ``slots[index]``.
 
-    Args: positions [..., T, N, 3] (the paper's, ``propose_windows``), slots [..., T, F, N, 3] of
+    Args: positions [..., T', N, 3] (the paper's, ``propose_windows``), slots [..., T', F, N, 3] of
     the same frames (slot k of frame t: the window starting at t - k; NaN where none) or None
-    (proposals with no windows: the recorded particles), pool in WINDOW_POOLS.
-    Returns [..., T, N, 3].
+    (proposals with no windows: the recorded particles), pool in WINDOW_POOLS, ``index`` the
+    leading dimensions' index that picks the observed window out of both (``numpy.s_[:, :t]``;
+    the last frame it keeps is the last observed one). Returns [..., T, N, 3].
     """
+    check_window_pool(pool, "window_pool")
+    positions = positions[index]
     if pool == "last" or slots is None:
         return positions
-    check_window_pool(pool, "pool")
+    slots = slots[index]
     t, f = slots.shape[-4], slots.shape[-3]
     frame, slot = torch.arange(t)[:, None], torch.arange(f)[None, :]
     ends_within = (frame - slot + f - 1 <= t - 1).to(slots.device)  # [T, F]: the window ends by the last observed frame

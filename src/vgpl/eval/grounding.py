@@ -5,6 +5,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+import numpy as np
 import torch
 from tqdm.auto import tqdm
 
@@ -102,7 +103,7 @@ def evaluate_grounding(dynamics, visual, inference, scene, test: Rollouts, ablat
                                             truth_noise_std, noise)
     else:
         proposals, logits, slots = observed_proposals(visual, test.images, start_frame, t_max, progress)
-    seen_proposals = pool_windows(proposals[:, :observed], None if slots is None else slots[:, :observed], window_pool)
+    seen_proposals = pool_windows(proposals, slots, window_pool, np.s_[:, :observed])
     seen = slice(start_frame, start_frame + observed)
     truth_seen = test.positions[:, seen]
     gen = torch.Generator().manual_seed(seed)
@@ -171,7 +172,7 @@ def rigidness_against_length(inference, proposals: torch.Tensor, logits: torch.T
     for t in tqdm(range(1, proposals.shape[1] + 1), desc="rigidness curve", unit="T", disable=not progress):
         # all 100 videos at T = 20 at once made 17M proposal edges, 10 GB per activation, and
         # ran memory-bound for over half an hour on 2 cores
-        p, lg = pool_windows(proposals[:, :t], None if slots is None else slots[:, :t], window_pool), logits[:, :t]
+        p, lg = pool_windows(proposals, slots, window_pool, np.s_[:, :t]), logits[:, :t]
         q = torch.cat([inference.rigidness(p[i : i + chunk], lg[i : i + chunk], kinematic) for i in range(0, len(p), chunk)])
         probs.append(correct_rigidness_prob(q, rigid))  # [R, M]
     probs = torch.stack(probs, -1)  # [R, M, T_max]

@@ -103,7 +103,7 @@ def evaluate(cfg: DictConfig) -> dict:
     if paths["proposals"] is not None:
         start = cfg.env.get("start_frame", 0)
         frames = start + proposed_frames(observed, cfg.eval.get("max_observed", 20), test.positions.shape[1], start)
-        prop = exported_proposals(paths["proposals"], test.rollout_ids, frames)
+        prop = exported_proposals(paths["proposals"], test.rollout_ids, frames, window_pool)
         if prop.positions.shape[2] != n:
             raise ValueError(f"{paths['proposals']}: proposals of {prop.positions.shape[2]} particles, the checkpoints expect {n}")
         exported = (prop.positions, prop.logits, prop.slots)

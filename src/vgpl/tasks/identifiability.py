@@ -54,7 +54,7 @@ def evaluate_identifiability(model: DynamicsPrior, scene: Scene, test: Rollouts,
     positions, grouping, rigidness, params, planes, kinematic = true_window(scene, test, start_frame, n_frames, n)
     if history == "proposals":
         path = proposals_path(root, scene.name, "test")
-        proposals = read_proposals(path)
+        proposals = read_proposals(path, "last")  # the paper's proposals; the slots stay on disk
         if proposals.positions.shape[0] < n or not torch.equal(proposals.rollout_ids[:n], test.rollout_ids[:n]) or proposals.positions.shape[1] < start_frame + h:
             raise DatasetError(f"{path}: proposals do not cover the first {n} test rollouts' frames {start_frame}..{start_frame + h - 1}; re-export with task=export_proposals")
         positions[:, :h] = proposals.positions[:n, start_frame : start_frame + h]
