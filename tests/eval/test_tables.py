@@ -82,3 +82,19 @@ def test_paired_table_says_whether_vgpl_is_lower_on_the_same_videos():
     assert by["VGPL w/o rigidness"]["VGPL is"] == "higher"
     assert "## Is VGPL lower at T+20?" in report_markdown(records)
     assert "Is VGPL lower" not in report_markdown([_record("mass_rope", "full", 3.0)])  # older records: no section
+
+
+def test_every_section_lists_the_envs_in_the_papers_order_whatever_order_the_sweep_wrote_them():
+    """A multirun over env=rigid_fall,fluid_cube,mass_rope writes its records in job order; the
+    report's refinement, rigidness and paired sections follow Table 1's columns (MassRope,
+    RigidFall, FluidCube), as the paper does."""
+    records = []
+    for env in ("rigid_fall", "fluid_cube", "mass_rope"):
+        full = _with_videos(env, "full", [10.0, 20.0]) | {"refine_mse_x1e4_before": 2.0, "refine_mse_x1e4_after": 1.0,
+                                                         f"rigidness_prob@10/{env}_object": 0.9}
+        records += [full, _with_videos(env, "no_params", [15.0, 26.0])]
+    report = report_markdown(records)
+    assert report.index("| mass_rope | 2.000") < report.index("| rigid_fall | 2.000") < report.index("| fluid_cube | 2.000")
+    assert report.index("| mass_rope | mass_rope_object") < report.index("| rigid_fall | rigid_fall_object") < report.index("| fluid_cube | fluid_cube_object")
+    paired = report[report.index("## Is VGPL lower"):]
+    assert paired.index("| mass_rope |") < paired.index("| rigid_fall |") < paired.index("| fluid_cube |")

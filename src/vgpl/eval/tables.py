@@ -159,7 +159,8 @@ def report_markdown(records: list[dict], paired: dict | None = None) -> str:
     records = pool_runs(records)
     parts = ["## Table 1: parameter estimation, MAE as % of the range (std)", markdown(*table1_rows(records)),
              "", "## Table 2: future prediction, MSE x 1e4 after T+k steps", markdown(*table2_rows(records))]
-    extra = [r for r in records if "refine_mse_x1e4_before" in r and _key(r) == ("vgpl", "full")]
+    order = {env: k for k, env in enumerate(_envs(records))}  # the paper's env order, as in Tables 1 and 2
+    extra = sorted((r for r in records if "refine_mse_x1e4_before" in r and _key(r) == ("vgpl", "full")), key=lambda r: order[r["env"]])
     if extra:
         parts += ["", "## Refinement: position MSE x 1e4 of the observed frames", markdown(
             ["env", "before (proposals)", "after (refined)"],
