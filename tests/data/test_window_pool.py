@@ -112,16 +112,21 @@ def test_slots_are_read_only_for_the_pool_that_needs_them_and_a_visual_file_with
         read_proposals(path, "median")
 
 
-def test_merged_training_proposals_keep_every_videos_slots():
-    """scripts/experiments/merge_proposals.py: the windows' slots follow their videos into the
-    merged file (window_pool=mean needs every video's), and are dropped where a file lacks them."""
+def _experiment_script(name: str):
+    """scripts/experiments/<name>.py as a module (the scripts are not a package)."""
     import importlib.util
     from pathlib import Path
 
-    script = Path(__file__).parents[2] / "scripts" / "experiments" / "merge_proposals.py"
-    spec = importlib.util.spec_from_file_location("merge_proposals", script)
-    merge_proposals = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(merge_proposals)
+    spec = importlib.util.spec_from_file_location(name, Path(__file__).parents[2] / "scripts" / "experiments" / f"{name}.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_merged_training_proposals_keep_every_videos_slots():
+    """scripts/experiments/merge_proposals.py: the windows' slots follow their videos into the
+    merged file (window_pool=mean needs every video's), and are dropped where a file lacks them."""
+    merge_proposals = _experiment_script("merge_proposals")
 
     def prop(ids, frames, with_slots=True):
         r = len(ids)
@@ -135,3 +140,23 @@ def test_merged_training_proposals_keep_every_videos_slots():
         torch.testing.assert_close(merged.slots[row], source.slots[k, :6])
         torch.testing.assert_close(merged.positions[row], source.positions[k, :6])
     assert merge_proposals.merge(first, prop([0], 6, with_slots=False)).slots is None
+
+
+def test_window_slots_measures_each_slots_error_and_its_lead_along_the_motion():
+    """scripts/experiments/window_slots.py: slots placed a known distance ahead of (or behind) the
+    true motion read back that lead in mm and that error; the pooled proposals average the slots
+    of the windows that end within the observed frames."""
+    t, f, n = 8, 4, 5
+    frames = torch.arange(t, dtype=torch.float)[None, :, None, None]
+    truth = torch.zeros(2, t, n, 3) + frames * torch.tensor([0.01, 0.0, 0.0])  # 10 mm a frame along x
+    lead = torch.tensor([3.0, 1.0, -1.0, -3.0]) * 1e-3  # slot k: this far ahead along the motion
+    slots = truth[:, :, None] + lead[None, None, :, None, None] * torch.tensor([1.0, 0.0, 0.0])
+    slots[:, :f - 1, f - 1] = float("nan")  # the first frames have no window ending at them
+    paper = torch.where(torch.arange(t)[None, :, None, None] < f - 1, slots[:, :, 0], slots[:, :, f - 1])
+    movable = torch.tensor([True, True, True, True, False])
+    report = _experiment_script("window_slots").slot_report(paper, slots, truth, movable)
+    assert report["slot_lead_mm"] == pytest.approx([3.0, 1.0, -1.0, -3.0], abs=1e-4)
+    assert report["slot_mse_x1e4"] == pytest.approx([(x * 1e-3) ** 2 / 3 * 1e4 for x in (3.0, 1.0, -1.0, -3.0)], rel=1e-4)
+    assert report["mean"] == pytest.approx(float(((pool_windows(paper, slots, "mean") - truth)[..., :4, :] ** 2).mean() * 1e4))
+    assert report["per_frame"][-1]["mean"] == report["per_frame"][-1]["last"]  # the last frame: the paper's one window
+    assert report["per_frame"][3]["mean"] < report["per_frame"][3]["last"]  # +3, +1, -1 mm and -3 mm average towards zero
