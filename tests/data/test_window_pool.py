@@ -151,8 +151,10 @@ def test_window_slots_measures_each_slots_error_and_its_lead_along_the_motion():
     truth = torch.zeros(2, t, n, 3) + frames * torch.tensor([0.01, 0.0, 0.0])  # 10 mm a frame along x
     lead = torch.tensor([3.0, 1.0, -1.0, -3.0]) * 1e-3  # slot k: this far ahead along the motion
     slots = truth[:, :, None] + lead[None, None, :, None, None] * torch.tensor([1.0, 0.0, 0.0])
-    slots[:, :f - 1, f - 1] = float("nan")  # the first frames have no window ending at them
-    paper = torch.where(torch.arange(t)[None, :, None, None] < f - 1, slots[:, :, 0], slots[:, :, f - 1])
+    for k in range(1, f):
+        slots[:, :k, k] = float("nan")  # frame t < k: no window starts at t - k
+    first = torch.stack([slots[:, k, k] for k in range(f - 1)], 1)  # frames 0 .. F - 2: the first window's
+    paper = torch.cat([first, slots[:, f - 1 :, f - 1]], 1)  # then each frame from the window ending at it
     movable = torch.tensor([True, True, True, True, False])
     report = _experiment_script("window_slots").slot_report(paper, slots, truth, movable)
     assert report["slot_lead_mm"] == pytest.approx([3.0, 1.0, -1.0, -3.0], abs=1e-4)
