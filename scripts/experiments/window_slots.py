@@ -30,7 +30,7 @@ from omegaconf import OmegaConf
 from vgpl.data.grounding import split_with_proposals
 from vgpl.data.window_pool import pool_windows
 from vgpl.eval.metrics import position_mse_x1e4
-from vgpl.sim.envs import make_scene
+from vgpl.sim.envs import ENVS, make_scene
 
 CONF = Path(__file__).resolve().parents[2] / "conf" / "env"
 MOVING_MM = 1.0  # a particle counts as moving where it travels more than this in a frame
@@ -52,9 +52,8 @@ def slot_report(proposals, slots: torch.Tensor, truth: torch.Tensor, movable: to
     for k in range(f):
         s = slots[:, :, k]
         have = ~s.isnan().any(-1)  # [R, T, N]
-        sq = ((s - truth) ** 2).sum(-1)  # [R, T, N]
         keep = have & movable
-        slot_mse.append(float(sq[keep].mean() / 3 * 1e4) if keep.any() else float("nan"))
+        slot_mse.append(position_mse_x1e4(s[keep], truth[keep]) if keep.any() else float("nan"))
         lead = ((s - truth) * direction).sum(-1)[have & moving]
         slot_lead.append(float(lead.mean() * 1e3) if lead.numel() else float("nan"))
     per_frame = [{"frame": t, "last": position_mse_x1e4(proposals[:, t], truth[:, t], movable),
@@ -65,7 +64,7 @@ def slot_report(proposals, slots: torch.Tensor, truth: torch.Tensor, movable: to
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--root", required=True, help="dataset root with <env>/{test,proposals} (task=export_proposals wrote the slots)")
-    parser.add_argument("--env", required=True, choices=["rigid_fall", "fluid_cube", "mass_rope"])
+    parser.add_argument("--env", required=True, choices=sorted(ENVS))
     parser.add_argument("--split", default="test")
     parser.add_argument("--videos", type=int, default=100)
     parser.add_argument("--observed", type=int, default=10)
