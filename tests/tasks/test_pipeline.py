@@ -82,7 +82,7 @@ def test_every_ablation_and_the_baseline_are_in_the_report(tiny):
         assert line in text  # every training ran to max_steps, and the report says so
     assert "stopped by trainer.max_time" not in text
     summary = json.loads((tmp / "run/pipeline.json").read_text())  # what benchmarks/main_job.py reads
-    assert summary["trained"]["train_dynamics"] == {"steps": 250, "max_steps": 250, "stopped_by": "max_steps"}
+    assert summary["trained"]["train_dynamics"] == {"steps": 250, "max_steps": 250, "stopped_by": "max_steps", "precision": "32-true"}
     assert set(summary["times_s"]) >= {"generate", "train_dynamics", "train_visual", "evaluate/full"}
     no_params = next(r for r in result["records"] if r["ablation"] == "no_params")
     full = next(r for r in result["records"] if r["method"] == "vgpl" and r["ablation"] == "full")

@@ -13,6 +13,7 @@ from hydra import compose, initialize_config_dir
 from torch.utils.data import DataLoader, TensorDataset
 
 from tests.conftest import REPO
+from vgpl.hardware import fast_precision
 from vgpl.models.step_learning_rate import annealed_fraction
 from vgpl.tasks.pipeline import training_summary
 from vgpl.tasks.stage import LastValidation, checkpointing, snapshots, stopping, trainer_kwargs, validate_final
@@ -43,7 +44,7 @@ def fit(delay: float, ckpt_path: str | None = None, **limits) -> L.Trainer:
 
 
 def test_a_fit_that_reaches_max_steps_says_so():
-    assert stopping(fit(0.0, max_steps=5)) == {"steps": 5, "max_steps": 5, "stopped_by": "max_steps"}
+    assert stopping(fit(0.0, max_steps=5)) == {"steps": 5, "max_steps": 5, "stopped_by": "max_steps", "precision": "32-true"}
 
 
 def test_a_fit_cut_by_max_time_says_how_many_steps_it_ran():
@@ -53,7 +54,7 @@ def test_a_fit_cut_by_max_time_says_how_many_steps_it_ran():
 
 
 def test_a_fit_that_runs_out_of_epochs_says_so():
-    assert stopping(fit(0.0, max_epochs=1)) == {"steps": 16, "max_steps": -1, "stopped_by": "max_epochs"}
+    assert stopping(fit(0.0, max_epochs=1)) == {"steps": 16, "max_steps": -1, "stopped_by": "max_epochs", "precision": "32-true"}
 
 
 def test_the_report_lists_every_training_and_flags_the_time_capped_one():
@@ -217,15 +218,12 @@ def test_the_standard_prior_ends_without_history_noise_on_its_clock():
         assert compose("config", overrides=["env=rigid_fall", "experiment=quick"]).model.dynamics.net.noise_free_steps == 0
 
 
-
 def test_the_standard_prior_trains_in_bf16_where_it_is_fast_and_the_visual_stages_in_fp32():
     """The README's measured standard priors ran in bf16-mixed, passed by hand until session 53
     (FluidCube: 14.5 steps/s against 9.3 in fp32 on the AMD EPYC); the preset now says so for the
     prior alone, where the CPU has bf16 units, while the visual prior and the baseline keep the fp32
     they were measured in and the inference stage its own choice. ``trainer.precision`` still reaches
     the prior, so the README's fp32 commands reproduce."""
-    from vgpl.hardware import fast_precision
-
     with initialize_config_dir(str(REPO / "conf"), version_base="1.3"):
         cfg = compose("config", overrides=["env=fluid_cube", "experiment=standard"])
         fp32 = compose("config", overrides=["env=fluid_cube", "experiment=standard", "trainer.precision=32-true"])

@@ -87,8 +87,8 @@ def pipeline(cfg: DictConfig) -> dict:
     text = write_tables(records, out, notes)
     print(text)
     log.info("pipeline step times (s): %s", times)
-    ends = {step: {k: r[k] for k in ("steps", "max_steps", "stopped_by")} for step, r in trained.items() if "steps" in r}
-    (out / "pipeline.json").write_text(json.dumps({"env": cfg.env.name, "precision": str(cfg.trainer.precision), "times_s": times, "trained": ends}, indent=1))
+    ends = {step: {k: r[k] for k in ("steps", "max_steps", "stopped_by", "precision")} for step, r in trained.items() if "steps" in r}
+    (out / "pipeline.json").write_text(json.dumps({"env": cfg.env.name, "times_s": times, "trained": ends}, indent=1))
     return {"env": cfg.env.name, "identifiability": identifiability, "records": records, "times_s": times, "report": str(out / "report.md")}
 
 

@@ -135,9 +135,10 @@ def snapshots(folder: str | Path, every_n_steps: int) -> ModelCheckpoint:
 
 
 def stopping(trainer: L.Trainer) -> dict:
-    """How a fit ended: the steps run, the max_steps asked for, and the limit that stopped it
-    (``max_steps``, ``max_time`` or ``max_epochs``). A fit cut by max_time ran fewer steps than
-    asked, so its numbers depend on the machine's speed."""
+    """How a fit ended: the steps run, the max_steps asked for, the limit that stopped it
+    (``max_steps``, ``max_time`` or ``max_epochs``) and the precision it trained in (each stage
+    has its own: the standard preset's prior in bf16, its visual prior in fp32). A fit cut by
+    max_time ran fewer steps than asked, so its numbers depend on the machine's speed."""
     steps, max_steps = trainer.global_step, trainer.max_steps
     timer = next((c for c in trainer.callbacks if isinstance(c, Timer)), None)
     if 0 <= max_steps <= steps:
@@ -146,4 +147,4 @@ def stopping(trainer: L.Trainer) -> dict:
         by = "max_time"
     else:
         by = "max_epochs"
-    return {"steps": steps, "max_steps": max_steps, "stopped_by": by}
+    return {"steps": steps, "max_steps": max_steps, "stopped_by": by, "precision": str(trainer.precision)}
