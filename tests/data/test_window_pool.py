@@ -162,3 +162,23 @@ def test_window_slots_measures_each_slots_error_and_its_lead_along_the_motion():
     assert report["mean"] == pytest.approx(float(((pool_windows(paper, slots, "mean") - truth)[..., :4, :] ** 2).mean() * 1e4))
     assert report["per_frame"][-1]["mean"] == report["per_frame"][-1]["last"]  # the last frame: the paper's one window
     assert report["per_frame"][3]["mean"] < report["per_frame"][3]["last"]  # +3, +1, -1 mm and -3 mm average towards zero
+
+
+def test_proposals_travel_as_float16_parts_and_join_into_the_same_file(tmp_path):
+    """scripts/experiments/proposals_parts.py: a proposals file split into parts of at most N
+    rollouts (a device call returns files of at most 16 MB) joins back into one file with the same
+    rollouts in order, its attrs, no slots, and positions within float16's rounding (< 1e-3 of 2 m)."""
+    parts = _experiment_script("proposals_parts")
+    torch.manual_seed(0)
+    source = Proposals(torch.rand(5, 6, 4, 3) * 2.0, torch.randn(5, 6, 4, 2), torch.tensor([7, 3, 9, 0, 1]),
+                       {"env": "fluid_cube", "split": "train", "visual_checkpoint": "v.ckpt", "source": "visual", "noise_std": 0.0},
+                       torch.rand(5, 6, 4, 4, 3))
+    written = parts.pack(write_proposals(tmp_path / "train.h5", source), tmp_path / "out", rollouts=2)
+    assert [p.name for p in written] == ["train_part0.npz", "train_part1.npz", "train_part2.npz"]
+    joined = read_proposals(parts.unpack(list(reversed(written)), tmp_path / "joined" / "train.h5"))  # parts in any order
+    assert joined.rollout_ids.tolist() == [7, 3, 9, 0, 1] and joined.slots is None
+    assert joined.positions.dtype == torch.float32 and joined.positions.shape == (5, 6, 4, 3)
+    assert (joined.positions - source.positions).abs().max() <= 2.0 * 2**-11  # float16's spacing below 2 m is at most 2^-10
+    torch.testing.assert_close(joined.logits, source.logits, atol=4e-3, rtol=1e-3)
+    assert {k: joined.attrs[k] for k in ("env", "split", "visual_checkpoint", "source")} == {
+        "env": "fluid_cube", "split": "train", "visual_checkpoint": "v.ckpt", "source": "visual"}
