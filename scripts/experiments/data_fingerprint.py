@@ -19,7 +19,7 @@ from vgpl.data.trajectories import load_split
 
 
 def fingerprint(root: str, env: str, frames: int) -> dict:
-    """{split: {rollouts, ids, sum_first, sum_all, first_rollouts}} of ``root/env``'s splits."""
+    """{split: {rollouts, ids (min, max), sum_first_<frames>, sum_all, first_rollouts_all}} of ``root/env``'s splits."""
     out = {}
     for split in ("train", "test"):
         r = load_split(root, env, split)

@@ -29,8 +29,9 @@ def pack(path: Path, out: Path, rollouts: int) -> list[Path]:
     """Parts of at most ``rollouts`` rollouts each: positions, logits (float16), rollout_ids, attrs (JSON)."""
     prop = read_proposals(path, window_pool="last")
     half = prop.positions.half()
-    print(f"{path}: positions {tuple(prop.positions.shape)}; float16 rounding: max {float((half.float() - prop.positions).abs().max()):.2e} m, "
-          f"position MSE x 1e4 {float(position_mse_x1e4(half.float(), prop.positions)):.2e}")
+    rounded = half.float()
+    print(f"{path}: positions {tuple(prop.positions.shape)}; float16 rounding: max {float((rounded - prop.positions).abs().max()):.2e} m, "
+          f"position MSE x 1e4 {position_mse_x1e4(rounded, prop.positions):.2e}")
     out.mkdir(parents=True, exist_ok=True)
     attrs = json.dumps({k: v.item() if isinstance(v, np.generic) else v for k, v in prop.attrs.items()})
     written = []
