@@ -30,6 +30,12 @@ def test_windows_need_proposals_only_as_far_as_the_last_observed_frame():
     assert torch.equal(item["proposals"], proposals.positions[1, 22:32])
 
 
+def test_items_carry_the_true_rigidness_per_instance_for_the_logged_reading():
+    scene, rollouts, proposals = _data(env="fluid_cube")
+    batch = torch.utils.data.default_collate([GroundingWindows(rollouts, proposals, scene, observed=10, horizon=5)[k] for k in (0, 7)])
+    assert batch["rigid"].tolist() == [[True, False]] * 2  # FluidCube: the cube, then the fluid
+
+
 def test_too_short_proposals_name_the_fix():
     scene, rollouts, proposals = _data(proposal_frames=31)
     with pytest.raises(DatasetError, match="cover the first 31 frames.*need 32.*re-export with task=export_proposals"):

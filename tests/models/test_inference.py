@@ -131,6 +131,28 @@ def test_unknown_trajectory_start_is_refused():
         _modules(trajectory_start="proposals")
 
 
+def test_rigidness_reading_is_logged_per_object_type_and_never_trained_on():
+    """rigid_correct/<type>: the mean probability Q gives the true label, per type, as task=evaluate's rigidness_prob."""
+    torch.manual_seed(0)
+    _, inf = _modules(m=3, instance_types=["cube", "fluid", "cube"])
+    batch = {**_batch(), "logits": torch.randn(2, 8, 24, 3)}
+    without = inf._losses(batch)
+    assert not any(k.startswith("rigid_correct") for k in without)
+    torch.manual_seed(0)
+    _, inf = _modules(m=3, instance_types=["cube", "fluid", "cube"])
+    rigid = torch.tensor([[True, False, True]] * 2)
+    losses = inf._losses({**batch, "rigid": rigid})
+    torch.testing.assert_close(losses["loss"], without["loss"])  # logged only
+    with torch.no_grad():
+        q = inf.infer(batch["proposals"], batch["logits"], batch["kinematic"][0])["rigidness"]  # [2, 3]
+    torch.testing.assert_close(losses["rigid_correct/cube"], q[:, [0, 2]].mean())
+    torch.testing.assert_close(losses["rigid_correct/fluid"], 1 - q[:, 1].mean())
+    ablated = _modules(m=3, rigidness=False)[1]._losses({**batch, "rigid": rigid})  # Q is zero: nothing to read
+    assert not any(k.startswith("rigid_correct") for k in ablated)
+    with pytest.raises(ValueError, match="instance_types=.*expected n_instances=3"):
+        _modules(m=3, instance_types=["cube", "fluid"])
+
+
 def test_ablation_switches():
     torch.manual_seed(0)
     _, inf = _modules()

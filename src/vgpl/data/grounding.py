@@ -34,7 +34,7 @@ def split_with_proposals(root: str | Path, env: str, split: str, window_pool: st
 
 class GroundingWindows(Dataset):
     """Item: proposals [T, N, 3], logits [T, N, M], positions [T + k, N, 3] (truth), planes
-    [T + k, K, 4], params [P], kinematic [N]. Windows start at ``start_frame`` and every
+    [T + k, K, 4], params [P], kinematic [N], rigid [M] (the true rigidness, only logged). Windows start at ``start_frame`` and every
     ``stride``-th frame after it, up to ``start_frame + span`` when ``span`` is given. The proposals
     may cover only the first frames of each video, as far as the last window's observed frames.
     ``window_pool`` reads each window's proposals from the visual prior's windows (``pool_windows``)."""
@@ -67,7 +67,7 @@ class GroundingWindows(Dataset):
             "proposals": pool_windows(self.p.positions, self.p.slots, self.window_pool, (r, seen)),
             "logits": self.p.logits[r, seen],
             "positions": self.r.positions[r, full], "planes": self.planes[r, full],
-            "params": self.r.params[r], "kinematic": self.kinematic,
+            "params": self.r.params[r], "kinematic": self.kinematic, "rigid": self.r.rigid,
         }
 
 

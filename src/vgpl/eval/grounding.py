@@ -13,7 +13,7 @@ from vgpl.data.proposals import propose_windows, truth_proposals
 from vgpl.data.trajectories import Rollouts
 from vgpl.data.window_pool import check_window_pool, pool_windows
 from vgpl.eval.error_sources import RolloutInputs, error_sources
-from vgpl.eval.metrics import correct_rigidness_prob, midpoint_error_pct, param_signed_error_pct, position_mse_x1e4
+from vgpl.eval.metrics import correct_rigidness_prob, mean_per_type, midpoint_error_pct, param_signed_error_pct, position_mse_x1e4
 from vgpl.eval.rollout import future_mse, rollout
 
 
@@ -178,8 +178,3 @@ def rigidness_against_length(inference, proposals: torch.Tensor, logits: torch.T
     probs = torch.stack(probs, -1)  # [R, M, T_max]
     return {name: curve.tolist() for name, curve in mean_per_type(probs, types).items()}
 
-
-def mean_per_type(probs: torch.Tensor, types) -> dict:
-    """probs [R, M, ...] averaged over the videos and the instances of each object type
-    (``types`` names each of the M instances): type -> [...], in the order types first appear."""
-    return {name: probs[:, [m for m, n in enumerate(types) if n == name]].mean((0, 1)) for name in dict.fromkeys(types)}

@@ -33,3 +33,9 @@ def position_mse_x1e4(pred: torch.Tensor, truth: torch.Tensor, mask: torch.Tenso
 def correct_rigidness_prob(rigidness: torch.Tensor, rigid: torch.Tensor) -> torch.Tensor:
     """Probability given to the true label per scene and instance [B, M]: q where rigid, 1 - q elsewhere."""
     return torch.where(rigid[None].bool(), rigidness, 1.0 - rigidness)
+
+
+def mean_per_type(probs: torch.Tensor, types) -> dict:
+    """probs [R, M, ...] averaged over the videos and the instances of each object type
+    (``types`` names each of the M instances): type -> [...], in the order types first appear."""
+    return {name: probs[:, [m for m, n in enumerate(types) if n == name]].mean((0, 1)) for name in dict.fromkeys(types)}

@@ -14,7 +14,8 @@ rolled from the last ``history`` refined frames, where the evaluation starts (no
 axis at random, a symmetry of RigidFall (not the paper: against the train/test gap
 of 300 training videos). ``lr_anneal_steps`` K > 0 anneals every rate to zero over the last K steps (or the same share of
 a trainer.max_time; ``AnnealedLearningRate``, as VisualPrior's; not the paper).
-Nothing supervises Q or P directly, unless
+Nothing supervises Q or P directly (``rigid_correct/<type>`` and ``param_mae_pct`` are logged
+against the truth, never trained on), unless
 ``param_weight`` > 0 adds an L1 on P (not the paper: a shortcut for presets of a few CPU
 minutes, whose dynamics prior is too weak to ground P through; README).
 """
@@ -27,6 +28,7 @@ from torch import nn
 from torch_geometric.nn import MLP
 
 from vgpl.data.vertical_symmetry import random_about_vertical
+from vgpl.eval.metrics import correct_rigidness_prob, mean_per_type
 from vgpl.eval.rollout import rollout
 from vgpl.graph import edge_features, radius_graph
 from vgpl.models.step_learning_rate import AnnealedLearningRate
@@ -103,6 +105,7 @@ class InferenceModule(AnnealedLearningRate, NormalisationBuffers, L.LightningMod
         tail_detach_params: bool = False,
         lr_anneal_steps: int = 0,
         param_rotation: bool = False,
+        instance_types: list[str] | None = None,
     ) -> None:
         super().__init__()
         if param_rotation and not separate_param_net:
@@ -114,6 +117,8 @@ class InferenceModule(AnnealedLearningRate, NormalisationBuffers, L.LightningMod
             raise ValueError(f"InferenceModule: trajectory_start={trajectory_start!r}, expected 'refined' (the paper), 'truth' or 'both'")
         if param_lr is not None and not param_lr > 0:
             raise ValueError(f"InferenceModule: param_lr={param_lr!r}, expected a positive learning rate or null (= lr)")
+        if instance_types is not None and len(instance_types) != n_instances:
+            raise ValueError(f"InferenceModule: instance_types={instance_types} names {len(instance_types)} instances, expected n_instances={n_instances}")
         self.save_hyperparameters()
         self.register_normalisation(param_low, param_high)
         node_dim = 3 + 3 + n_instances + 1
@@ -251,6 +256,10 @@ class InferenceModule(AnnealedLearningRate, NormalisationBuffers, L.LightningMod
         if self.hparams.param_weight > 0:  # NOT the paper: a supervised shortcut for CPU-minute presets (README)
             losses["loss"] = losses["loss"] + self.hparams.param_weight * p_error.mean()
         losses["param_mae_pct"] = (p_error * 50.0).mean()
+        if self.hparams.rigidness and "rigid" in batch:  # Q's reading per object type, as task=evaluate reports it
+            types = self.hparams.instance_types or [f"instance{m}" for m in range(q.shape[1])]
+            for name, prob in mean_per_type(correct_rigidness_prob(q.detach(), batch["rigid"][0]), types).items():
+                losses[f"rigid_correct/{name}"] = prob
         return losses
 
     def training_step(self, batch, batch_idx):

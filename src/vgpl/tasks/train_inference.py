@@ -51,6 +51,7 @@ def train_inference(cfg: DictConfig) -> dict:
     model: InferenceModule = hydra.utils.instantiate(
         spec.net, _convert_="all", param_low=scene.param_low.tolist(), param_high=scene.param_high.tolist(),
         n_particles=scene.n_particles, n_instances=scene.n_instances, radius=cfg.env.graph_radius, rigidness=bool(cfg.ablation.rigidness),
+        instance_types=scene.instance_types,
     )
     model.set_stats(dynamics)  # the same units as the prior it is trained through
     model.attach_dynamics(dynamics)
