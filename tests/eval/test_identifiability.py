@@ -5,7 +5,7 @@ from types import SimpleNamespace
 import pytest
 import torch
 
-from vgpl.eval.identifiability import oracle_param_sweep, param_gradient_agreement
+from vgpl.eval.identifiability import oracle_param_sweep, param_gradient_agreement, rigidness_sweep
 from vgpl.eval.rollout import rollout
 
 
@@ -161,3 +161,47 @@ def test_windows_after_landing_teach_nothing_while_the_fall_teaches_p():
     landed = param_gradient_agreement(prior, truth[:, 15:25], None, None, params, planes[:, :10], kinematic, n_steps=8)
     assert falling["agreement"].min() == 1.0
     assert landed["agreement"].max() == 0.0 and landed["median_abs_grad"].max() == 0.0
+
+
+class Damped(Falling):
+    """A stand-in prior whose particles keep their velocity when rigid (q = 1) and lose half of it a
+    step when not (q = 0), q_i = sum_m G_im Q_m; P plays no part."""
+
+    def step(self, window, grouping, rigidness, params, planes, kinematic, driven=None):
+        q = (grouping * rigidness[:, None, :]).sum(-1, keepdim=True)  # [B, N, 1]
+        return window[:, -1] + (window[:, -1] - window[:, -2]) * (0.5 + 0.5 * q)
+
+
+def _two_instances(b: int = 3, n: int = 6, n_steps: int = 6):
+    """Scenes of a rigid instance (particles 0-2, 'cube') and a non-rigid one (3-5, 'fluid') moved by ``Damped``."""
+    torch.manual_seed(0)
+    grouping = torch.nn.functional.one_hot(torch.tensor([0, 0, 0, 1, 1, 1]), 2).float().expand(b, -1, -1)
+    rigidness, params = torch.tensor([[1.0, 0.0]]).expand(b, -1), torch.full((b, 1), -10.0)
+    start = torch.rand(b, 2, n, 3)
+    start[:, 1] = start[:, 0] + 0.01 * torch.randn(b, n, 3)
+    planes, kinematic = torch.zeros(b, 2 + n_steps, 0, 4), torch.zeros(n, dtype=torch.bool)
+    truth = torch.cat([start, rollout(Damped(), start, grouping, rigidness, params, planes, kinematic, n_steps)], 1)
+    return truth, grouping, rigidness, params, planes, kinematic
+
+
+def test_the_rigidness_sweep_finds_each_types_true_label_where_the_prior_uses_q():
+    window = _two_instances()
+    out = rigidness_sweep(Damped(), *window, 6, ["cube", "fluid"], chunk=2)
+    for name in ("cube", "fluid"):
+        assert out[name]["truth_preferred"] == 1.0 and out[name]["oracle_correct"] == 1.0
+    assert out["cube"]["l1"].argmin() == 4 and out["fluid"]["l1"].argmin() == 0  # values 0, .25, .5, .75, 1
+    assert out["cube"]["l1"][4] == pytest.approx(0.0, abs=1e-5) and (out["cube"]["l1"].diff() < 0).all()
+
+
+def test_a_prior_blind_to_q_prefers_no_label():
+    """A flat loss: no scene prefers the truth (ties are not preferences) and the argmin is the first value, 0."""
+    out = rigidness_sweep(Falling(), *_two_instances(), 6, ["cube", "fluid"], values=(0.0, 1.0))
+    assert torch.allclose(out["cube"]["l1"], out["cube"]["l1"][0].expand(2))
+    assert out["cube"]["truth_preferred"] == 0.0 and out["fluid"]["truth_preferred"] == 0.0
+    assert out["cube"]["oracle_correct"] == 0.0 and out["fluid"]["oracle_correct"] == 1.0
+
+
+@pytest.mark.parametrize("values", [(0.0,), (0.2, 1.0), (0.0, 0.9)])
+def test_a_rigidness_sweep_that_misses_either_label_is_refused(values):
+    with pytest.raises(ValueError, match="expected at least two, from 0 .non-rigid. to 1 .rigid."):
+        rigidness_sweep(Damped(), *_two_instances(), 6, ["cube", "fluid"], values=values)

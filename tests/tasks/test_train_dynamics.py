@@ -75,6 +75,9 @@ def test_evaluation_from_the_checkpoint_alone_reproduces_the_numbers(trained):
     # the parameter sweep over the inference module's window (tests/eval/test_identifiability.py checks its numbers)
     assert len(again["rollout_l1_over_grid/gravity"]) == 9 and 0 <= again["oracle_param_mae_pct/gravity"] <= 100
     assert again["midpoint_param_mae_pct/gravity"] > 0 and Image.open(tmp / "run/oracle_gravity.png").size[0] > 100
+    # and the rigidness sweep per object type (RigidFall: one type, its cubes set together)
+    assert again["rigidness_grid"] == [0.0, 0.25, 0.5, 0.75, 1.0] and len(again["rollout_l1_over_rigidness/cube"]) == 5
+    assert 0 <= again["rigidness_truth_preferred/cube"] <= 1 and 0 <= again["rigidness_oracle_correct/cube"] <= 1
 
 
 def test_parameter_sweep_from_proposals_starts_from_them_and_names_a_missing_file(trained):

@@ -105,6 +105,43 @@ def oracle_param_sweep(model, positions, grouping, rigidness, params, planes, ki
     }
 
 
+def rigidness_sweep(model, positions, grouping, rigidness, params, planes, kinematic, n_steps: int, types,
+                    values=(0.0, 0.25, 0.5, 0.75, 1.0), chunk: int = 16) -> dict:
+    """Does the prior's rollout loss, from the true frames and P, prefer each object type's true rigidness?
+
+    For each type (``types`` names each of the M instances), the Q of all its instances is set to
+    each of ``values`` (the first 0, the last 1) and every other instance keeps its true Q; the
+    per-scene argmin is the "rigidness oracle". The inference module learns Q only through this
+    loss, as it learns P: a type whose loss does not prefer its true label cannot be read right.
+
+    Args: as ``oracle_param_sweep``; rigidness [B, M] true (0 or 1); types [M].
+    Returns type -> {``l1`` [V] (the mean rollout L1 at each value, units of the displacement std),
+    ``truth_preferred`` (share of scenes whose L1 at the true label is below the one at the
+    opposite label), ``oracle_correct`` (the mean probability the per-scene argmin gives the true
+    label, as task=evaluate's rigidness_prob)}, and ``values`` [V].
+    """
+    values = torch.as_tensor(values, dtype=torch.float32)
+    if len(values) < 2 or values[0] != 0.0 or values[-1] != 1.0:
+        raise ValueError(f"rigidness_sweep: values={values.tolist()}, expected at least two, from 0 (non-rigid) to 1 (rigid)")
+    if len(types) != rigidness.shape[1]:
+        raise ValueError(f"rigidness_sweep: {len(types)} type names for {rigidness.shape[1]} instances")
+    result: dict = {"values": values}
+    with torch.no_grad():
+        for name in dict.fromkeys(types):
+            members = torch.tensor([t == name for t in types])
+            losses = []
+            for v in values.tolist():
+                q = torch.where(members, torch.full_like(rigidness, v), rigidness)
+                losses.append(rollout_l1_per_scene(model, positions, grouping, q, params, planes, kinematic, n_steps, chunk))
+            loss = torch.stack(losses, 1)  # [B, V]
+            rigid = rigidness[:, members].mean(1) > 0.5  # [B] the type's true label
+            at_truth, at_opposite = torch.where(rigid, loss[:, -1], loss[:, 0]), torch.where(rigid, loss[:, 0], loss[:, -1])
+            argmin = values[loss.argmin(1)]
+            result[name] = {"l1": loss.mean(0), "truth_preferred": float((at_truth < at_opposite).float().mean()),
+                            "oracle_correct": float(torch.where(rigid, argmin, 1.0 - argmin).mean())}
+    return result
+
+
 def param_gradient_agreement(model, positions, grouping, rigidness, params, planes, kinematic, n_steps: int,
                              probes=(-0.75, -0.25, 0.25, 0.75), margin: float = 0.1, chunk: int = 16) -> dict:
     """Does the rollout L1's gradient in each parameter point to its true value?

@@ -22,7 +22,7 @@ from vgpl.data.proposals import read_proposals
 from vgpl.data.schema import DatasetError
 from vgpl.data.trajectories import Rollouts, load_split, true_window
 from vgpl.eval.figures import gradient_agreement_figure, params_figure, save
-from vgpl.eval.identifiability import oracle_param_sweep, param_gradient_agreement
+from vgpl.eval.identifiability import oracle_param_sweep, param_gradient_agreement, rigidness_sweep
 from vgpl.models.dynamics_prior import DynamicsPrior
 from vgpl.sim.scene import Scene
 from vgpl.tasks.stage import stage_checkpoint
@@ -80,6 +80,28 @@ def sweep_metrics(model: DynamicsPrior, scene: Scene, test: Rollouts, cfg: DictC
         result[f"rollout_l1_over_grid/{name}"] = [round(float(v), 5) for v in sweep["loss_curve"][j]]
         save(params_figure(sweep["truth"][:, j], sweep["oracle_params"][:, j], float(scene.param_low[j]), float(scene.param_high[j]), name,
                            f"{scene.name}: argmin of the prior's rollout L1"), out / f"oracle_{name}.png")
+    return result
+
+
+def rigidness_metrics(model: DynamicsPrior, scene: Scene, test: Rollouts, cfg: DictConfig, train_cfg: DictConfig, values: int,
+                      max_rollouts: int | None) -> dict:
+    """``rigidness_sweep`` of each object type's Q over ``values`` evenly spaced values in [0, 1], over
+    ``cfg.model.inference``'s window from the true frames and P of the first ``max_rollouts`` test
+    rollouts: ``rollout_l1_over_rigidness/<type>`` [values], ``rigidness_truth_preferred/<type>`` and
+    ``rigidness_oracle_correct/<type>`` (README: design)."""
+    if values < 2:
+        raise ValueError(f"task.rigidness_grid={values}: expected 0 (skip) or at least 2 values from 0 to 1")
+    inf = cfg.model.inference
+    n_frames = inf.observed + inf.net.horizon
+    n = test.positions.shape[0] if max_rollouts is None else min(max_rollouts, test.positions.shape[0])
+    model.eval()
+    window = true_window(scene, test, train_cfg.env.get("start_frame", 0), n_frames, n)
+    sweep = rigidness_sweep(model, *window, n_frames - model.hparams.history, scene.instance_types, torch.linspace(0.0, 1.0, values).tolist())
+    result: dict = {"rigidness_grid": sweep["values"].tolist()}
+    for name in dict.fromkeys(scene.instance_types):
+        result[f"rollout_l1_over_rigidness/{name}"] = [round(float(v), 5) for v in sweep[name]["l1"]]
+        result[f"rigidness_truth_preferred/{name}"] = sweep[name]["truth_preferred"]
+        result[f"rigidness_oracle_correct/{name}"] = sweep[name]["oracle_correct"]
     return result
 
 

@@ -20,7 +20,7 @@ from vgpl.eval.preview import write_gif
 from vgpl.eval.tensorboard_media import add_gif, rollout_video
 from vgpl.models.dynamics_prior import DynamicsPrior
 from vgpl.sim.scene import Scene
-from vgpl.tasks.identifiability import check_window_starts, gradient_agreement_by_start, sweep_metrics
+from vgpl.tasks.identifiability import check_window_starts, gradient_agreement_by_start, rigidness_metrics, sweep_metrics
 from vgpl.tasks.stage import fit, setup_run, stopping
 
 log = logging.getLogger(__name__)
@@ -119,6 +119,11 @@ def evaluate_dynamics(cfg: DictConfig) -> dict:
         result |= sweep_metrics(model, scene, test, cfg, train_cfg, out, grid, cfg.eval.get("max_rollouts"), cfg.task.get("param_sweep_history", "truth"),
                                 int(cfg.task.get("param_grid_refine", 0)))
         log.info("identifiability: %s", {k: v for k, v in result.items() if "param_mae" in k})
+        write_metrics()
+    q_grid = int(cfg.task.get("rigidness_grid", 0))
+    if q_grid > 0:
+        result |= rigidness_metrics(model, scene, test, cfg, train_cfg, q_grid, cfg.eval.get("max_rollouts"))
+        log.info("rigidness through the prior: %s", {k: v for k, v in result.items() if k.startswith("rigidness_")})
         write_metrics()
     if starts:
         inf = cfg.model.inference
