@@ -118,6 +118,9 @@ def test_gradient_agreement_by_window_start_is_the_per_window_numbers_and_bad_st
     with pytest.raises(ValueError, match=r"task.gradient_starts=\[16\]: .*starts 0..15"):
         evaluate_dynamics(config(tmp, "task=evaluate_dynamics", ckpt, "task.param_grid=0", "eval.max_rollouts=2", "task.gradient_starts=[16]"))
     assert json.loads((tmp / "run/metrics.json").read_text())["param_gradient_agreement/gravity"] == shares  # refused before writing anything
+    with pytest.raises(ValueError, match=r"task.rigidness_grid=1: expected 0 \(skip\) or at least 2 values"):
+        evaluate_dynamics(config(tmp, "task=evaluate_dynamics", ckpt, "eval.max_rollouts=2", "task.rigidness_grid=1"))
+    assert json.loads((tmp / "run/metrics.json").read_text())["param_gradient_agreement/gravity"] == shares  # so is a grid without both labels
 
 
 def test_a_stopped_gradient_agreement_keeps_the_oracle_numbers_in_metrics_json(trained, monkeypatch):

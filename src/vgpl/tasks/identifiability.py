@@ -36,6 +36,17 @@ class IdentifiabilityError(RuntimeError):
     """The dynamics prior's rollout loss does not identify a physical parameter."""
 
 
+def inference_window(scene: Scene, test: Rollouts, observed: int, horizon: int, start_frame: int, max_rollouts: int | None) -> tuple:
+    """``true_window`` over the inference module's window (``observed`` frames from ``start_frame`` on,
+    plus ``horizon``) of the first ``max_rollouts`` test rollouts (None: all), the window the prior's
+    sweeps roll; refused when it runs past the rollouts' end."""
+    n_frames = observed + horizon
+    if start_frame + n_frames > test.positions.shape[1]:
+        raise ValueError(f"identifiability: {start_frame} + {observed} observed + {horizon} frames exceed the {test.positions.shape[1]}-frame rollouts")
+    n = test.positions.shape[0] if max_rollouts is None else min(max_rollouts, test.positions.shape[0])
+    return true_window(scene, test, start_frame, n_frames, n)
+
+
 def evaluate_identifiability(model: DynamicsPrior, scene: Scene, test: Rollouts, root: str, observed: int, horizon: int, grid: int,
                              max_rollouts: int | None = None, start_frame: int = 0, history: str = "truth", refine: int = 0) -> dict:
     """``oracle_param_sweep`` on the first ``max_rollouts`` rollouts of the test split ``test``
@@ -46,12 +57,9 @@ def evaluate_identifiability(model: DynamicsPrior, scene: Scene, test: Rollouts,
     (what an inference module without refinement would see)."""
     if history not in ("truth", "proposals"):
         raise ValueError(f"task.param_sweep_history={history!r}: expected 'truth' or 'proposals'")
-    n_frames = observed + horizon
-    if start_frame + n_frames > test.positions.shape[1]:
-        raise ValueError(f"identifiability: {start_frame} + {observed} observed + {horizon} frames exceed the {test.positions.shape[1]}-frame rollouts")
-    n = test.positions.shape[0] if max_rollouts is None else min(max_rollouts, test.positions.shape[0])
     h = model.hparams.history
-    positions, grouping, rigidness, params, planes, kinematic = true_window(scene, test, start_frame, n_frames, n)
+    positions, grouping, rigidness, params, planes, kinematic = inference_window(scene, test, observed, horizon, start_frame, max_rollouts)
+    n, n_frames = positions.shape[:2]
     if history == "proposals":
         path = proposals_path(root, scene.name, "test")
         proposals = read_proposals(path, "last")  # the paper's proposals; the slots stay on disk
@@ -83,20 +91,24 @@ def sweep_metrics(model: DynamicsPrior, scene: Scene, test: Rollouts, cfg: DictC
     return result
 
 
+def check_rigidness_grid(values: int) -> None:
+    """Refuse a ``task.rigidness_grid`` that cannot hold both labels (0 and 1)."""
+    if values < 2:
+        raise ValueError(f"task.rigidness_grid={values}: expected 0 (skip) or at least 2 values from 0 to 1")
+
+
 def rigidness_metrics(model: DynamicsPrior, scene: Scene, test: Rollouts, cfg: DictConfig, train_cfg: DictConfig, values: int,
                       max_rollouts: int | None) -> dict:
     """``rigidness_sweep`` of each object type's Q over ``values`` evenly spaced values in [0, 1], over
     ``cfg.model.inference``'s window from the true frames and P of the first ``max_rollouts`` test
     rollouts: ``rollout_l1_over_rigidness/<type>`` [values], ``rigidness_truth_preferred/<type>`` and
     ``rigidness_oracle_correct/<type>`` (README: design)."""
-    if values < 2:
-        raise ValueError(f"task.rigidness_grid={values}: expected 0 (skip) or at least 2 values from 0 to 1")
+    check_rigidness_grid(values)
     inf = cfg.model.inference
-    n_frames = inf.observed + inf.net.horizon
-    n = test.positions.shape[0] if max_rollouts is None else min(max_rollouts, test.positions.shape[0])
+    window = inference_window(scene, test, inf.observed, inf.net.horizon, train_cfg.env.get("start_frame", 0), max_rollouts)
     model.eval()
-    window = true_window(scene, test, train_cfg.env.get("start_frame", 0), n_frames, n)
-    sweep = rigidness_sweep(model, *window, n_frames - model.hparams.history, scene.instance_types, torch.linspace(0.0, 1.0, values).tolist())
+    sweep = rigidness_sweep(model, *window, window[0].shape[1] - model.hparams.history, scene.instance_types,
+                            torch.linspace(0.0, 1.0, values).tolist())
     result: dict = {"rigidness_grid": sweep["values"].tolist()}
     for name in dict.fromkeys(scene.instance_types):
         result[f"rollout_l1_over_rigidness/{name}"] = [round(float(v), 5) for v in sweep[name]["l1"]]
@@ -123,12 +135,11 @@ def gradient_agreement_by_start(model: DynamicsPrior, scene: Scene, test: Rollou
     ``param_gradient_median_abs/<name>`` the same for the median |dL/dP|; the curves go to
     ``out/gradient_agreement_<name>.png``."""
     check_window_starts(starts, test.positions.shape[1], observed, horizon)
-    n_frames = observed + horizon
-    n = test.positions.shape[0] if max_rollouts is None else min(max_rollouts, test.positions.shape[0])
     model.eval()
     rows = []
     for start in starts:
-        rows.append(param_gradient_agreement(model, *true_window(scene, test, start, n_frames, n), n_frames - model.hparams.history))
+        rows.append(param_gradient_agreement(model, *inference_window(scene, test, observed, horizon, start, max_rollouts),
+                                             observed + horizon - model.hparams.history))
         log.info("gradient agreement, window from frame %d: %s", start, [[round(v, 3) for v in r] for r in rows[-1]["agreement"].tolist()])
     result: dict = {"gradient_starts": list(starts), "gradient_probes": rows[0]["probes"].tolist()}
     for j, name in enumerate(scene.param_names):

@@ -20,7 +20,7 @@ from vgpl.eval.preview import write_gif
 from vgpl.eval.tensorboard_media import add_gif, rollout_video
 from vgpl.models.dynamics_prior import DynamicsPrior
 from vgpl.sim.scene import Scene
-from vgpl.tasks.identifiability import check_window_starts, gradient_agreement_by_start, rigidness_metrics, sweep_metrics
+from vgpl.tasks.identifiability import check_rigidness_grid, check_window_starts, gradient_agreement_by_start, rigidness_metrics, sweep_metrics
 from vgpl.tasks.stage import fit, setup_run, stopping
 
 log = logging.getLogger(__name__)
@@ -103,6 +103,9 @@ def evaluate_dynamics(cfg: DictConfig) -> dict:
     starts = list(cfg.task.get("gradient_starts") or [])
     if starts:  # refused before an hour of rollouts, not after
         check_window_starts(starts, test.positions.shape[1], cfg.model.inference.observed, cfg.model.inference.net.horizon)
+    q_grid = int(cfg.task.get("rigidness_grid", 0))
+    if q_grid > 0:  # so is a grid without both labels
+        check_rigidness_grid(q_grid)
     metrics, pred, truth = evaluate_rollouts(
         model, scene, test, cfg.eval.observed, cfg.eval.n_steps, cfg.eval.get("max_rollouts"), train_cfg.env.get("start_frame", 0)
     )
@@ -120,7 +123,6 @@ def evaluate_dynamics(cfg: DictConfig) -> dict:
                                 int(cfg.task.get("param_grid_refine", 0)))
         log.info("identifiability: %s", {k: v for k, v in result.items() if "param_mae" in k})
         write_metrics()
-    q_grid = int(cfg.task.get("rigidness_grid", 0))
     if q_grid > 0:
         result |= rigidness_metrics(model, scene, test, cfg, train_cfg, q_grid, cfg.eval.get("max_rollouts"))
         log.info("rigidness through the prior: %s", {k: v for k, v in result.items() if k.startswith("rigidness_")})
