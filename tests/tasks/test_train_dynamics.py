@@ -361,6 +361,31 @@ def test_init_from_starts_a_fine_tune_from_the_checkpoints_weights(trained):
                               f"paths.ckpt_dir={tmp}/ckpt_bad"))
 
 
+
+def test_init_reset_puts_a_fresh_head_on_the_checkpoints_trunk(trained):
+    """``model.dynamics.init_reset=[rigid_head]``: another rigid head (the paper's pooled one for
+    RigidFall's projected) starts fresh while every other weight and the normalisation come from the checkpoint;
+    without it the shape clash names the option that would resolve it, and a name that is no
+    submodule is refused by name."""
+    tmp, result = trained
+    source, _ = load_dynamics(result["checkpoint"])
+    assert source.hparams.rigid_head == "projected"
+    head = ("model.dynamics.net.rigid_head=pooled", "model.dynamics.net.lr=0", "trainer.limit_train_batches=2")
+    tuned = train_dynamics(config(tmp, "task=train_dynamics", f"model.dynamics.init_from={result['checkpoint']}", "model.dynamics.init_reset=[rigid_head]",
+                                  *head, f"paths.ckpt_dir={tmp}/ckpt_reset"))
+    model, _ = load_dynamics(tuned["checkpoint"])
+    assert model.hparams.rigid_head == "pooled"
+    mine, theirs = model.state_dict(), source.state_dict()
+    trunk = [k for k in mine if not k.startswith("rigid_head.")]
+    assert len(trunk) > 10 and all(torch.equal(mine[k], theirs[k]) for k in trunk)
+    assert mine["rigid_head.lins.2.weight"].shape[0] == 7 and theirs["rigid_head.lins.2.weight"].shape[0] == 3  # quaternion + translation
+    with pytest.raises(CheckpointError, match=r"rigid_head\.lins\.2\.weight.*model\.dynamics\.init_reset: \[rigid_head\] would start"):
+        train_dynamics(config(tmp, "task=train_dynamics", f"model.dynamics.init_from={result['checkpoint']}", *head, f"paths.ckpt_dir={tmp}/ckpt_clash"))
+    with pytest.raises(CheckpointError, match=r"model\.dynamics\.init_reset: 'rigid' is no submodule of DynamicsPrior, expected one of .*'rigid_head'"):
+        train_dynamics(config(tmp, "task=train_dynamics", f"model.dynamics.init_from={result['checkpoint']}", "model.dynamics.init_reset=[rigid]",
+                              *head, f"paths.ckpt_dir={tmp}/ckpt_typo"))
+    assert not (tmp / "ckpt_clash").exists() and not (tmp / "ckpt_typo").exists()
+
 def test_param_rotation_is_refused_on_an_env_without_the_symmetry(tmp_path):
     """FluidCube's container is not symmetric about the vertical axis: the option is refused by
     name before any checkpoint or data is read."""

@@ -66,7 +66,7 @@ def train_dynamics(cfg: DictConfig) -> dict:
     )
     model.set_stats(dm.stats)
     if spec.get("init_from"):
-        init_weights(model, spec.init_from, "model.dynamics.init_from", scene.name, scene.n_particles)
+        init_weights(model, spec.init_from, "model.dynamics.init_from", scene.name, scene.n_particles, spec.get("init_reset") or ())
     trainer, last = fit(cfg, "dynamics", spec, model, dm)
     if not trainer.is_global_zero:  # under DDP the other ranks stop here; rank 0 evaluates and writes
         return {"env": scene.name, "checkpoint": str(last)}

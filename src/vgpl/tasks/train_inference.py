@@ -56,7 +56,7 @@ def train_inference(cfg: DictConfig) -> dict:
     model.set_stats(dynamics)  # the same units as the prior it is trained through
     model.attach_dynamics(dynamics)
     if spec.get("init_from"):
-        init_weights(model, spec.init_from, "model.inference.init_from", scene.name, scene.n_particles)
+        init_weights(model, spec.init_from, "model.inference.init_from", scene.name, scene.n_particles, spec.get("init_reset") or ())
     stage = inference_stage(cfg.ablation)
     trainer, last = fit(cfg, stage, spec, model, dm)
     validate_final(trainer, model, dm)  # every rank: under DDP validation is collective; val/* below are last.ckpt's
