@@ -123,6 +123,32 @@ def test_gradient_agreement_by_window_start_is_the_per_window_numbers_and_bad_st
     assert json.loads((tmp / "run/metrics.json").read_text())["param_gradient_agreement/gravity"] == shares  # so is a grid without both labels
 
 
+
+def test_task_start_frame_moves_every_window_and_a_bad_one_names_the_option(trained):
+    """``task.start_frame=10``: the sweeps roll frames 10-24 (the inference module's 10 + 5), not the
+    prior's env.start_frame's 0-14, and the test rollouts start there too; an out-of-range frame is
+    refused before anything is written."""
+    from vgpl.checkpoint import scene_of
+    from vgpl.data.trajectories import ground_truth_grouping
+    from vgpl.eval.identifiability import rigidness_sweep
+
+    tmp, result = trained
+    ckpt = f"ckpt_path={result['checkpoint']}"
+    base = (ckpt, "task.param_grid=0", "eval.max_rollouts=2")
+    at_0, at_10 = (evaluate_dynamics(config(tmp, "task=evaluate_dynamics", *base, f"task.start_frame={s}")) for s in (0, 10))
+    assert (at_0["start_frame"], at_10["start_frame"]) == (0, 10)
+    assert at_10["rollout_l1_over_rigidness/cube"] != at_0["rollout_l1_over_rigidness/cube"]
+    assert at_10["future_mse_x1e4@1"] != at_0["future_mse_x1e4@1"]
+    model, train_cfg = load_dynamics(result["checkpoint"])
+    test, scene = load_split(tmp / "data", "rigid_fall", "test"), scene_of(train_cfg)
+    frames, n = slice(10, 25), min(2, len(test.params))
+    direct = rigidness_sweep(model, test.positions[:n, frames], ground_truth_grouping(test).expand(n, -1, -1), test.rigid.float().expand(n, -1),
+                             test.params[:n], scene.planes_at(test.actions[:n, frames]), torch.as_tensor(scene.kinematic), 11, scene.instance_types)
+    assert at_10["rollout_l1_over_rigidness/cube"] == pytest.approx(direct["cube"]["l1"].tolist(), abs=1e-4)
+    with pytest.raises(ValueError, match=r"task.start_frame=30: expected null \(the prior's env.start_frame, 0\) or a frame in 0..29"):
+        evaluate_dynamics(config(tmp, "task=evaluate_dynamics", *base, "task.start_frame=30"))
+    assert json.loads((tmp / "run/metrics.json").read_text())["start_frame"] == 10  # refused before writing anything
+
 def test_a_stopped_gradient_agreement_keeps_the_oracle_numbers_in_metrics_json(trained, monkeypatch):
     """The gradient agreement runs last and can take an hour: stopping it (here, a failure in its
     first window) must leave the sweep's numbers in metrics.json, not only in the log."""

@@ -70,15 +70,14 @@ def evaluate_identifiability(model: DynamicsPrior, scene: Scene, test: Rollouts,
     return oracle_param_sweep(model, positions, grouping, rigidness, params, planes, kinematic, n_frames - h, grid, refine) | {"truth": params}
 
 
-def sweep_metrics(model: DynamicsPrior, scene: Scene, test: Rollouts, cfg: DictConfig, train_cfg: DictConfig, out: Path, grid: int,
+def sweep_metrics(model: DynamicsPrior, scene: Scene, test: Rollouts, cfg: DictConfig, start_frame: int, out: Path, grid: int,
                   max_rollouts: int | None, history: str = "truth", refine: int = 0) -> dict:
-    """Run the sweep over ``cfg.model.inference``'s window and return its flat metrics
+    """Run the sweep over ``cfg.model.inference``'s window from ``start_frame`` on and return its flat metrics
     (``oracle_param_mae_pct/<name>``, ``oracle_param_bias_pct/<name>``, ``grid_param_mae_pct/<name>``, ``midpoint_param_mae_pct/<name>``,
     ``rollout_l1_over_grid/<name>``);
     the scatter of oracle against truth goes to ``out/oracle_<name>.png``."""
     inf = cfg.model.inference
-    sweep = evaluate_identifiability(model, scene, test, cfg.data.root, inf.observed, inf.net.horizon, grid, max_rollouts,
-                                     train_cfg.env.get("start_frame", 0), history, refine)
+    sweep = evaluate_identifiability(model, scene, test, cfg.data.root, inf.observed, inf.net.horizon, grid, max_rollouts, start_frame, history, refine)
     result: dict = {"param_sweep_history": history, "param_grid": grid, "param_grid_refine": refine}
     for j, name in enumerate(scene.param_names):
         result[f"oracle_param_mae_pct/{name}"] = float(sweep["oracle_param_mae_pct"][j])
@@ -97,15 +96,15 @@ def check_rigidness_grid(values: int) -> None:
         raise ValueError(f"task.rigidness_grid={values}: expected 0 (skip) or at least 2 values from 0 to 1")
 
 
-def rigidness_metrics(model: DynamicsPrior, scene: Scene, test: Rollouts, cfg: DictConfig, train_cfg: DictConfig, values: int,
+def rigidness_metrics(model: DynamicsPrior, scene: Scene, test: Rollouts, cfg: DictConfig, start_frame: int, values: int,
                       max_rollouts: int | None) -> dict:
     """``rigidness_sweep`` of each object type's Q over ``values`` evenly spaced values in [0, 1], over
-    ``cfg.model.inference``'s window from the true frames and P of the first ``max_rollouts`` test
+    ``cfg.model.inference``'s window (from ``start_frame`` on) from the true frames and P of the first ``max_rollouts`` test
     rollouts: ``rollout_l1_over_rigidness/<type>`` [values], ``rigidness_truth_preferred/<type>`` and
     ``rigidness_oracle_correct/<type>`` (README: design)."""
     check_rigidness_grid(values)
     inf = cfg.model.inference
-    window = inference_window(scene, test, inf.observed, inf.net.horizon, train_cfg.env.get("start_frame", 0), max_rollouts)
+    window = inference_window(scene, test, inf.observed, inf.net.horizon, start_frame, max_rollouts)
     model.eval()
     sweep = rigidness_sweep(model, *window, window[0].shape[1] - model.hparams.history, scene.instance_types,
                             torch.linspace(0.0, 1.0, values).tolist())
@@ -187,11 +186,12 @@ def check_identifiability(cfg: DictConfig) -> dict:
         return {"skipped": True}
     scene = scene_of(cfg)
     path = stage_checkpoint(cfg, "dynamics")
-    model, train_cfg = load_stage(path, DynamicsPrior, env=scene.name, n_particles=scene.n_particles)
+    model, _ = load_stage(path, DynamicsPrior, env=scene.name, n_particles=scene.n_particles)
     out = Path(cfg.paths.output_dir)
     out.mkdir(parents=True, exist_ok=True)
     test = load_split(cfg.data.root, scene.name, "test", max_rollouts=spec.get("max_rollouts"))  # only the videos swept
-    metrics = sweep_metrics(model, scene, test, cfg, train_cfg, out, int(spec.grid), spec.get("max_rollouts"), refine=int(spec.get("refine", 0)))
+    # the window the inference module about to train will see: this run's start_frame
+    metrics = sweep_metrics(model, scene, test, cfg, int(cfg.env.get("start_frame", 0)), out, int(spec.grid), spec.get("max_rollouts"), refine=int(spec.get("refine", 0)))
     failed = unidentified(metrics, scene.param_names, float(spec.max_ratio))
     result = {"env": scene.name, "checkpoint": str(path), "param_names": list(scene.param_names), **metrics, "max_ratio": float(spec.max_ratio), "identified": not failed}
     (out / "identifiability.json").write_text(json.dumps(result, indent=1))

@@ -91,6 +91,16 @@ def load_dynamics(path: str | Path, env: str | None = None) -> tuple[DynamicsPri
     return load_stage(path, DynamicsPrior, env=env)
 
 
+def window_start(override: int | None, trained: int, n_frames: int) -> int:
+    """The first frame evaluate_dynamics' windows start at: ``task.start_frame`` when given, else the
+    prior's own ``env.start_frame`` (``trained``); refused unless 0 <= it < ``n_frames``."""
+    if override is None:
+        return int(trained)
+    if not isinstance(override, int) or isinstance(override, bool) or not 0 <= override < n_frames:
+        raise ValueError(f"task.start_frame={override!r}: expected null (the prior's env.start_frame, {trained}) or a frame in 0..{n_frames - 1} of the test rollouts")
+    return override
+
+
 def evaluate_dynamics(cfg: DictConfig) -> dict:
     if cfg.get("ckpt_path") in (None, "???"):
         raise ValueError("task=evaluate_dynamics needs ckpt_path=<path to a .ckpt>")
@@ -106,12 +116,11 @@ def evaluate_dynamics(cfg: DictConfig) -> dict:
     q_grid = int(cfg.task.get("rigidness_grid", 0))
     if q_grid > 0:  # so is a grid without both labels
         check_rigidness_grid(q_grid)
-    metrics, pred, truth = evaluate_rollouts(
-        model, scene, test, cfg.eval.observed, cfg.eval.n_steps, cfg.eval.get("max_rollouts"), train_cfg.env.get("start_frame", 0)
-    )
+    start = window_start(cfg.task.get("start_frame"), train_cfg.env.get("start_frame", 0), test.positions.shape[1])
+    metrics, pred, truth = evaluate_rollouts(model, scene, test, cfg.eval.observed, cfg.eval.n_steps, cfg.eval.get("max_rollouts"), start)
     out = Path(cfg.paths.output_dir)
     out.mkdir(parents=True, exist_ok=True)  # run.py's Hydra makes it; a direct call may not have
-    result = {"env": scene.name, "checkpoint": str(cfg.ckpt_path), **metrics}
+    result = {"env": scene.name, "checkpoint": str(cfg.ckpt_path), "start_frame": start, **metrics}
     # metrics.json is rewritten after each part, so a later part that fails or is stopped (no
     # proposals; the gradient agreement can take an hour) keeps the numbers of the earlier ones
     write_metrics = lambda: (out / "metrics.json").write_text(json.dumps(result, indent=1))  # noqa: E731
@@ -119,12 +128,12 @@ def evaluate_dynamics(cfg: DictConfig) -> dict:
     write_gif(rollout_video(scene.camera, scene.instance, truth[0], pred[0]), out / "rollout_truth_vs_prediction.gif", fps=15)
     grid = int(cfg.task.get("param_grid", 0))
     if grid > 0:
-        result |= sweep_metrics(model, scene, test, cfg, train_cfg, out, grid, cfg.eval.get("max_rollouts"), cfg.task.get("param_sweep_history", "truth"),
+        result |= sweep_metrics(model, scene, test, cfg, start, out, grid, cfg.eval.get("max_rollouts"), cfg.task.get("param_sweep_history", "truth"),
                                 int(cfg.task.get("param_grid_refine", 0)))
         log.info("identifiability: %s", {k: v for k, v in result.items() if "param_mae" in k})
         write_metrics()
     if q_grid > 0:
-        result |= rigidness_metrics(model, scene, test, cfg, train_cfg, q_grid, cfg.eval.get("max_rollouts"))
+        result |= rigidness_metrics(model, scene, test, cfg, start, q_grid, cfg.eval.get("max_rollouts"))
         log.info("rigidness through the prior: %s", {k: v for k, v in result.items() if k.startswith("rigidness_")})
         write_metrics()
     if starts:
