@@ -72,6 +72,17 @@ def init_weights(model, path: str | Path, option: str, env: str, n_particles: in
     log.info("%s initialised from %s%s", type(model).__name__, path, f", {', '.join(reset)} fresh" if reset else "")
 
 
+def init_from_spec(model, spec: DictConfig, stage: str, env: str, n_particles: int | None = None) -> None:
+    """``init_weights`` from a stage's config ``spec`` (``model.<stage>``: ``init_from``, ``init_reset``);
+    nothing without ``init_from``, and an ``init_reset`` without it is refused rather than ignored."""
+    reset = list(spec.get("init_reset") or ())
+    if not spec.get("init_from"):
+        if reset:
+            raise ValueError(f"model.{stage}.init_reset={reset}: needs model.{stage}.init_from, the checkpoint whose other weights are kept")
+        return
+    init_weights(model, spec.init_from, f"model.{stage}.init_from", env, n_particles, reset)
+
+
 def scene_of(cfg: DictConfig):
     """The Scene a (training) config describes."""
     return hydra.utils.instantiate(cfg.env.scene)

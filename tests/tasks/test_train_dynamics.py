@@ -410,7 +410,9 @@ def test_init_reset_puts_a_fresh_head_on_the_checkpoints_trunk(trained):
     with pytest.raises(CheckpointError, match=r"model\.dynamics\.init_reset: 'rigid' is no submodule of DynamicsPrior, expected one of .*'rigid_head'"):
         train_dynamics(config(tmp, "task=train_dynamics", f"model.dynamics.init_from={result['checkpoint']}", "model.dynamics.init_reset=[rigid]",
                               *head, f"paths.ckpt_dir={tmp}/ckpt_typo"))
-    assert not (tmp / "ckpt_clash").exists() and not (tmp / "ckpt_typo").exists()
+    with pytest.raises(ValueError, match=r"model\.dynamics\.init_reset=\['rigid_head'\]: needs model\.dynamics\.init_from"):
+        train_dynamics(config(tmp, "task=train_dynamics", "model.dynamics.init_reset=[rigid_head]", *head, f"paths.ckpt_dir={tmp}/ckpt_alone"))
+    assert not any((tmp / d).exists() for d in ("ckpt_clash", "ckpt_typo", "ckpt_alone"))
 
 def test_param_rotation_is_refused_on_an_env_without_the_symmetry(tmp_path):
     """FluidCube's container is not symmetric about the vertical axis: the option is refused by

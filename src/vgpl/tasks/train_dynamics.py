@@ -11,7 +11,7 @@ import hydra
 import torch
 from omegaconf import DictConfig
 
-from vgpl.checkpoint import init_weights, load_stage, scene_of
+from vgpl.checkpoint import init_from_spec, load_stage, scene_of
 from vgpl.data.schema import DatasetError
 from vgpl.data.trajectories import Rollouts, TrajectoryDataModule, load_split, true_window
 from vgpl.eval.error_breakdown import error_breakdown
@@ -65,8 +65,7 @@ def train_dynamics(cfg: DictConfig) -> dict:
         n_instances=scene.n_instances, radius=cfg.env.graph_radius, history=spec.history,
     )
     model.set_stats(dm.stats)
-    if spec.get("init_from"):
-        init_weights(model, spec.init_from, "model.dynamics.init_from", scene.name, scene.n_particles, spec.get("init_reset") or ())
+    init_from_spec(model, spec, "dynamics", scene.name, scene.n_particles)
     trainer, last = fit(cfg, "dynamics", spec, model, dm)
     if not trainer.is_global_zero:  # under DDP the other ranks stop here; rank 0 evaluates and writes
         return {"env": scene.name, "checkpoint": str(last)}

@@ -11,7 +11,7 @@ from pathlib import Path
 import hydra
 from omegaconf import DictConfig
 
-from vgpl.checkpoint import init_weights, load_stage, scene_of
+from vgpl.checkpoint import init_from_spec, load_stage, scene_of
 from vgpl.data.grounding import GroundingDataModule
 from vgpl.models.dynamics_prior import DynamicsPrior
 from vgpl.models.inference import InferenceModule
@@ -55,8 +55,7 @@ def train_inference(cfg: DictConfig) -> dict:
     )
     model.set_stats(dynamics)  # the same units as the prior it is trained through
     model.attach_dynamics(dynamics)
-    if spec.get("init_from"):
-        init_weights(model, spec.init_from, "model.inference.init_from", scene.name, scene.n_particles, spec.get("init_reset") or ())
+    init_from_spec(model, spec, "inference", scene.name, scene.n_particles)
     stage = inference_stage(cfg.ablation)
     trainer, last = fit(cfg, stage, spec, model, dm)
     validate_final(trainer, model, dm)  # every rank: under DDP validation is collective; val/* below are last.ckpt's
