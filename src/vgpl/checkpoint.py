@@ -47,27 +47,25 @@ def load_stage(path: str | Path, cls, env: str | None = None, n_particles: int |
     return model.eval(), cfg
 
 
-def init_weights(model, path: str | Path, option: str, env: str, n_particles: int | None = None, reset: Sequence[str] = ()) -> None:
+def init_weights(model, path: str | Path, spec_key: str, env: str, n_particles: int | None = None, reset: Sequence[str] = ()) -> None:
     """Start ``model`` from the weights (and buffers: normalisation statistics) of the checkpoint
     ``path`` of the same class, keeping ``model``'s own hyperparameters (e.g. its learning rate):
     a fine-tune with a fresh optimiser and timer, unlike ``ckpt_path`` which resumes a run.
     ``reset`` names submodules (e.g. ``rigid_head``) that keep ``model``'s fresh initialisation
-    instead: a new head on a trained trunk. ``option`` (e.g. ``model.inference.init_from``) names
-    the config key in the errors (its sibling ``init_reset`` for ``reset``)."""
+    instead: a new head on a trained trunk. ``spec_key`` (e.g. ``model.inference``) is the stage's
+    config group, whose ``init_from``, ``init_reset`` and ``net`` the errors name."""
     source, _ = load_stage(path, type(model), env=env, n_particles=n_particles)
     own = model.state_dict()
-    reset_option = option.rsplit(".", 1)[0] + ".init_reset"
     under = lambda key, name: key == name or key.startswith(name + ".")  # noqa: E731
+    fresh = lambda key: any(under(key, name) for name in reset)  # noqa: E731
     for name in reset:
         if not any(under(key, name) for key in own):
-            raise CheckpointError(f"{reset_option}: {name!r} is no submodule of {type(model).__name__}, expected one of {sorted({k.split('.')[0] for k in own})}")
-    state = {k: v for k, v in source.state_dict().items() if not any(under(k, name) for name in reset)}
-    state |= {k: v for k, v in own.items() if any(under(k, name) for name in reset)}
+            raise CheckpointError(f"{spec_key}.init_reset: {name!r} is no submodule of {type(model).__name__}, expected one of {sorted({k.split('.')[0] for k in own})}")
+    state = {k: v for k, v in source.state_dict().items() if not fresh(k)} | {k: v for k, v in own.items() if fresh(k)}
     differ = [k for k in own if k not in state or state[k].shape != own[k].shape] + [k for k in state if k not in own]
     if differ:
-        net = option.rsplit(".", 1)[0] + ".net"
-        raise CheckpointError(f"{path}: {option} has other layer shapes than {net} ({', '.join(differ[:3])}{', ...' if len(differ) > 3 else ''}; "
-                              f"{reset_option}: [{differ[0].split('.')[0]}] would start that submodule fresh)")
+        raise CheckpointError(f"{path}: {spec_key}.init_from has other layer shapes than {spec_key}.net ({', '.join(differ[:3])}{', ...' if len(differ) > 3 else ''}; "
+                              f"{spec_key}.init_reset: [{differ[0].split('.')[0]}] would start that submodule fresh)")
     model.load_state_dict(state)
     log.info("%s initialised from %s%s", type(model).__name__, path, f", {', '.join(reset)} fresh" if reset else "")
 
@@ -80,7 +78,7 @@ def init_from_spec(model, spec: DictConfig, stage: str, env: str, n_particles: i
         if reset:
             raise ValueError(f"model.{stage}.init_reset={reset}: needs model.{stage}.init_from, the checkpoint whose other weights are kept")
         return
-    init_weights(model, spec.init_from, f"model.{stage}.init_from", env, n_particles, reset)
+    init_weights(model, spec.init_from, f"model.{stage}", env, n_particles, reset)
 
 
 def scene_of(cfg: DictConfig):
