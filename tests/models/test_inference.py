@@ -126,6 +126,46 @@ def test_the_tail_loss_rolls_from_the_last_refined_frames_where_the_evaluation_s
         _modules(tail_horizon=3)
 
 
+@pytest.mark.parametrize("start", ["refined", "both"])
+def test_bernoulli_rigidness_learns_from_the_rollout_error_expected_over_each_label(start):
+    """rigidness_estimator=bernoulli: the prior sees the label Q > 0.5; Q's loss is
+    mean Q L1(rigid) + (1 - Q) L1(free) over scenes and instances, each L1 rolled here with that
+    instance's label set by hand (on the trajectory that trains P), and Q learns from it alone."""
+    from vgpl.eval.rollout import rollout
+
+    torch.manual_seed(0)
+    dyn, inf = _modules(trajectory_start=start, rigidness_estimator="bernoulli")
+    batch = _batch()
+    losses = inf._losses(batch)
+    with torch.no_grad():
+        out = inf.infer(batch["proposals"], batch["logits"], batch["kinematic"][0])
+    prob, labels = out["rigidness_prob"], out["rigidness"]
+    assert torch.equal(labels, (prob > 0.5).float()) and not torch.equal(labels, prob)
+    truth, t, h = batch["positions"], batch["proposals"].shape[1], dyn.hparams.history
+    first = truth[:, :h] if start == "both" else out["positions"][:, :h]  # the start P learns from
+    target, n_roll = truth[:, h:], t - h + inf.hparams.horizon
+
+    def error(q):  # [B] the trajectory L1 per scene with labels q [B, M]
+        future = rollout(dyn, torch.cat([first, target], 1), out["grouping"], q, out["params"], batch["planes"], batch["kinematic"][0], n_roll)
+        return ((future - target) / dyn.disp_std).abs().mean((1, 2, 3))
+
+    expected = torch.zeros(())
+    with torch.no_grad():
+        for m in range(labels.shape[1]):
+            rigid, free = labels.clone(), labels.clone()
+            rigid[:, m], free[:, m] = 1.0, 0.0
+            expected = expected + (prob[:, m] * error(rigid) + (1 - prob[:, m]) * error(free)).mean() / labels.shape[1]
+    torch.testing.assert_close(losses["rigidness"].detach(), expected, rtol=1e-5, atol=1e-7)
+    others = losses["loss"] - losses["rigidness"]
+    q_weights = list(inf.rigid_head.parameters())
+    assert all(g is None or not g.any() for g in torch.autograd.grad(others, q_weights, allow_unused=True, retain_graph=True))
+    assert sum(g.abs().sum() for g in torch.autograd.grad(losses["rigidness"], q_weights)) > 0
+    blend = _modules(trajectory_start=start)[1]._losses(batch)  # the paper's: Q is the prior's input, no separate loss
+    assert "rigidness" not in blend
+    with pytest.raises(ValueError, match="rigidness_estimator='sampled'"):
+        _modules(rigidness_estimator="sampled")
+
+
 def test_unknown_trajectory_start_is_refused():
     with pytest.raises(ValueError, match="trajectory_start='proposals'"):
         _modules(trajectory_start="proposals")

@@ -146,7 +146,7 @@ def evaluate_grounding(dynamics, visual, inference, scene, test: Rollouts, ablat
     curve = {}
     if ablation.rigidness:
         types = scene.instance_types
-        at_observed = correct_rigidness_prob(out["rigidness"], test.rigid)  # [R, M]
+        at_observed = correct_rigidness_prob(out["rigidness_prob"], test.rigid)  # [R, M]
         for name, prob in mean_per_type(at_observed, types).items():
             metrics[f"rigidness_prob@{observed}/{name}"] = float(prob)
         if rigidness_curve is None:

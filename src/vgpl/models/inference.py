@@ -18,6 +18,15 @@ Nothing supervises Q or P directly (``rigid_correct/<type>`` and ``param_mae_pct
 against the truth, never trained on), unless
 ``param_weight`` > 0 adds an L1 on P (not the paper: a shortcut for presets of a few CPU
 minutes, whose dynamics prior is too weak to ground P through; README).
+
+``rigidness_estimator`` says what Q is to the prior. ``blend`` (the paper): Q is the prior's
+blend weight between its rigid and per-particle heads, and learns by the gradient through it. A
+blend of two fair predictions beats either (FluidCube's cube: the prior's rollout L1 is lowest at
+Q = 0.5; README: design), so that loss pulls an object both heads move well to 0.5 whatever its
+label. ``bernoulli`` (not the paper): Q is the probability that an instance is rigid, the prior
+sees the label Q > 0.5, and Q learns from the expected trajectory L1 over the label,
+Q L1(rigid) + (1 - Q) L1(free), exact per instance: every instance's label is flipped in turn in
+one more rollout of the trajectory that trains P (no gradient; ``expected_rigidness_error``).
 """
 
 from __future__ import annotations
@@ -106,6 +115,7 @@ class InferenceModule(AnnealedLearningRate, NormalisationBuffers, L.LightningMod
         lr_anneal_steps: int = 0,
         param_rotation: bool = False,
         instance_types: list[str] | None = None,
+        rigidness_estimator: str = "blend",
     ) -> None:
         super().__init__()
         if param_rotation and not separate_param_net:
@@ -115,6 +125,9 @@ class InferenceModule(AnnealedLearningRate, NormalisationBuffers, L.LightningMod
             raise ValueError(f"InferenceModule: tail_horizon={tail_horizon}, expected 0 (off) to horizon={horizon} (the future frames a window holds)")
         if trajectory_start not in ("refined", "truth", "both"):
             raise ValueError(f"InferenceModule: trajectory_start={trajectory_start!r}, expected 'refined' (the paper), 'truth' or 'both'")
+        if rigidness_estimator not in ("blend", "bernoulli"):
+            raise ValueError(f"InferenceModule: rigidness_estimator={rigidness_estimator!r}, expected 'blend' (the paper: Q is the prior's "
+                             "blend weight) or 'bernoulli' (Q is the probability of the label the prior sees)")
         if param_lr is not None and not param_lr > 0:
             raise ValueError(f"InferenceModule: param_lr={param_lr!r}, expected a positive learning rate or null (= lr)")
         if instance_types is not None and len(instance_types) != n_instances:
@@ -185,18 +198,49 @@ class InferenceModule(AnnealedLearningRate, NormalisationBuffers, L.LightningMod
 
         Args: proposals [B, T, N, 3]; logits [B, T, N, M] (the visual prior's grouping logits).
         Returns positions [B, T, N, 3] (refined, or X' when ``refinement`` is off), grouping
-        [B, N, M], rigidness [B, M] (zeros when off), params [B, P] physical (uniform draws when off),
-        params_normalised [B, P].
+        [B, N, M], rigidness [B, M] what the prior takes (Q, or the label Q > 0.5 with the
+        ``bernoulli`` estimator; zeros when off), rigidness_prob [B, M] Q itself (zeros when off),
+        params [B, P] physical (uniform draws when off), params_normalised [B, P].
         """
         rigidness = self.hparams.rigidness if rigidness is None else rigidness
         grouping = torch.softmax(logits, -1).mean(1)
         out = self(proposals, grouping, kinematic)
         positions = proposals + out["refine"] if refinement else proposals
-        q = out["rigidness"] if rigidness else torch.zeros_like(out["rigidness"])
+        prob = out["rigidness"] if rigidness else torch.zeros_like(out["rigidness"])
         p = out["params"]
         if not params:
             p = torch.rand(p.shape, generator=generator, device="cpu").to(p.device) * 2.0 - 1.0
-        return {"positions": positions, "grouping": grouping, "rigidness": q, "params": self.to_physical(p), "params_normalised": p}
+        return {"positions": positions, "grouping": grouping, "rigidness": self.prior_rigidness(prob), "rigidness_prob": prob,
+                "params": self.to_physical(p), "params_normalised": p}
+
+    def prior_rigidness(self, prob: torch.Tensor) -> torch.Tensor:
+        """Q [B, M] -> the rigidness the dynamics prior is given: Q (``blend``), or the label Q > 0.5 (``bernoulli``)."""
+        return (prob > 0.5).to(prob) if self.hparams.rigidness_estimator == "bernoulli" else prob
+
+    @torch.no_grad()
+    def flipped_label_errors(self, start, target, grouping, labels, params, planes, kinematic, n_roll) -> torch.Tensor:
+        """The trajectory L1 [B, M] with instance m's label flipped (1 - label), the others kept, for
+        every m: one rollout of M B scenes, copy-major, without gradient. start [B, H, N, 3], target
+        [B, n_roll, N, 3], grouping [B, N, M], labels [B, M] in {0, 1}, params [B, P], planes as rollout's."""
+        b, m = labels.shape
+        flipped = labels[None].repeat(m, 1, 1)  # [M copies, B, M]
+        each = torch.arange(m, device=labels.device)
+        flipped[each, :, each] = 1.0 - flipped[each, :, each]
+        targets = tile_batch(target, m)
+        future = rollout(self.dynamics, torch.cat([tile_batch(start, m), targets], 1), tile_batch(grouping, m), flipped.reshape(m * b, m),
+                         tile_batch(params, m), tile_batch(planes, m), kinematic, n_roll)
+        error = ((future - targets) / self.dynamics.disp_std).abs()[:, :, ~kinematic].mean((1, 2, 3))
+        return error.reshape(m, b).T
+
+    def expected_rigidness_error(self, prob, labels, at_labels, flipped) -> torch.Tensor:
+        """The trajectory L1 expected over each instance's label, mean over scenes and instances:
+        Q L1(rigid) + (1 - Q) L1(free), whose gradient in Q is L1(rigid) - L1(free), exactly.
+        prob [B, M] Q; labels [B, M] the prior's labels; at_labels [B] L1 at them; flipped [B, M]
+        L1 with each label flipped (``flipped_label_errors``)."""
+        at_labels = at_labels.detach()[:, None].expand_as(flipped)
+        rigid = torch.where(labels > 0.5, at_labels, flipped)
+        free = torch.where(labels > 0.5, flipped, at_labels)
+        return (prob * rigid + (1.0 - prob) * free).mean()
 
     # ---- training through the frozen dynamics prior ---------------------------------------------
     def _losses(self, batch) -> dict:
@@ -239,6 +283,12 @@ class InferenceModule(AnnealedLearningRate, NormalisationBuffers, L.LightningMod
             error = ((future - targets) / scale).abs()[:, :, movable]
             for i, name in enumerate(runs):  # "both": P learns from the true start only, dX through the refined one
                 losses[name] = error[i * b : (i + 1) * b].mean()
+            if self.hparams.rigidness_estimator == "bernoulli" and self.hparams.rigidness:
+                # Q's only loss: the label of each instance flipped on the trajectory that trains P
+                i = list(runs).index("rollout_from_truth") if "rollout_from_truth" in runs else 0
+                scenes = slice(i * b, (i + 1) * b)
+                flipped = self.flipped_label_errors(start[scenes], target, g, q, params[scenes].detach(), planes, kinematic, n_roll)
+                losses["rigidness"] = self.expected_rigidness_error(out["rigidness_prob"], q, error[scenes].mean((1, 2, 3)), flipped)
         # the evaluation rolls from the LAST h refined frames, which the trajectory above never
         # starts from (only the per-position L1 trains them): tail_horizon > 0 rolls from them past
         # the window, so their motion is trained as the evaluation uses it; tail_detach_params keeps P
@@ -252,13 +302,13 @@ class InferenceModule(AnnealedLearningRate, NormalisationBuffers, L.LightningMod
         losses["refine"] = ((out["positions"] - truth[:, :t]) / scale).abs()[:, :, movable].mean()
         p_error = (out["params_normalised"] - self.normalise_params(batch["params"])).abs()
         losses["loss"] = (losses.get("one_step", 0.0) + losses.get("rollout", 0.0) + losses.get("rollout_from_truth", 0.0)
-                          + losses.get("tail", 0.0) + self.hparams.refine_weight * losses["refine"])
+                          + losses.get("tail", 0.0) + losses.get("rigidness", 0.0) + self.hparams.refine_weight * losses["refine"])
         if self.hparams.param_weight > 0:  # NOT the paper: a supervised shortcut for CPU-minute presets (README)
             losses["loss"] = losses["loss"] + self.hparams.param_weight * p_error.mean()
         losses["param_mae_pct"] = (p_error * 50.0).mean()
         if self.hparams.rigidness and "rigid" in batch:  # Q's reading per object type, as task=evaluate reports it
             types = self.hparams.instance_types or [f"instance{m}" for m in range(q.shape[1])]
-            for name, prob in mean_per_type(correct_rigidness_prob(q.detach(), batch["rigid"][0]), types).items():
+            for name, prob in mean_per_type(correct_rigidness_prob(out["rigidness_prob"].detach(), batch["rigid"][0]), types).items():
                 losses[f"rigid_correct/{name}"] = prob
         return losses
 
