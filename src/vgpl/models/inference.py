@@ -26,7 +26,8 @@ Q = 0.5; README: design), so that loss pulls an object both heads move well to 0
 label. ``bernoulli`` (not the paper): Q is the probability that an instance is rigid, the prior
 sees the label Q > 0.5, and Q learns from the expected trajectory L1 over the label,
 Q L1(rigid) + (1 - Q) L1(free), exact per instance: every instance's label is flipped in turn in
-one more rollout of the trajectory that trains P (no gradient; ``expected_rigidness_error``).
+one more rollout of the trajectory that trains P (no gradient; ``flipped_label_errors``,
+``expected_rigidness_error``). That loss is logged as train/ and val/rigidness and adds to val/loss.
 """
 
 from __future__ import annotations
