@@ -123,7 +123,6 @@ def test_gradient_agreement_by_window_start_is_the_per_window_numbers_and_bad_st
     assert json.loads((tmp / "run/metrics.json").read_text())["param_gradient_agreement/gravity"] == shares  # so is a grid without both labels
 
 
-
 def test_task_start_frame_moves_every_window_and_a_bad_one_names_the_option(trained):
     """``task.start_frame=10``: the sweeps roll frames 10-24 (the inference module's 10 + 5), not the
     prior's env.start_frame's 0-14, and the test rollouts start there too; an out-of-range frame is
@@ -148,6 +147,7 @@ def test_task_start_frame_moves_every_window_and_a_bad_one_names_the_option(trai
     with pytest.raises(ValueError, match=r"task.start_frame=30: expected null \(the prior's env.start_frame, 0\) or a frame in 0..29"):
         evaluate_dynamics(config(tmp, "task=evaluate_dynamics", *base, "task.start_frame=30"))
     assert json.loads((tmp / "run/metrics.json").read_text())["start_frame"] == 10  # refused before writing anything
+
 
 def test_a_stopped_gradient_agreement_keeps_the_oracle_numbers_in_metrics_json(trained, monkeypatch):
     """The gradient agreement runs last and can take an hour: stopping it (here, a failure in its
@@ -387,7 +387,6 @@ def test_init_from_starts_a_fine_tune_from_the_checkpoints_weights(trained):
                               f"paths.ckpt_dir={tmp}/ckpt_bad"))
 
 
-
 def test_init_reset_puts_a_fresh_head_on_the_checkpoints_trunk(trained):
     """``model.dynamics.init_reset=[rigid_head]``: another rigid head (the paper's pooled one for
     RigidFall's projected) starts fresh while every other weight and the normalisation come from the checkpoint;
@@ -413,6 +412,7 @@ def test_init_reset_puts_a_fresh_head_on_the_checkpoints_trunk(trained):
     with pytest.raises(ValueError, match=r"model\.dynamics\.init_reset=\['rigid_head'\]: needs model\.dynamics\.init_from"):
         train_dynamics(config(tmp, "task=train_dynamics", "model.dynamics.init_reset=[rigid_head]", *head, f"paths.ckpt_dir={tmp}/ckpt_alone"))
     assert not any((tmp / d).exists() for d in ("ckpt_clash", "ckpt_typo", "ckpt_alone"))
+
 
 def test_param_rotation_is_refused_on_an_env_without_the_symmetry(tmp_path):
     """FluidCube's container is not symmetric about the vertical axis: the option is refused by
