@@ -20,6 +20,7 @@ from pathlib import Path
 import numpy as np
 import torch
 from hydra import compose, initialize_config_dir
+from torch.utils.data import DataLoader, Subset
 
 from vgpl.checkpoint import load_stage, scene_of
 from vgpl.data.grounding import GroundingWindows, split_with_proposals
@@ -32,10 +33,9 @@ CONF = Path(__file__).resolve().parents[2] / "conf"
 def inferred_params(module: InferenceModule, windows: GroundingWindows, n: int, chunk: int = 20) -> tuple[np.ndarray, np.ndarray]:
     """(true [n, P], inferred [n, P]) physical parameters of the first ``n`` windows."""
     true, inferred = [], []
-    for i in range(0, n, chunk):
-        items = [windows[j] for j in range(i, min(i + chunk, n))]
-        out = module.infer(torch.stack([it["proposals"] for it in items]), torch.stack([it["logits"] for it in items]), items[0]["kinematic"])
-        true.append(torch.stack([it["params"] for it in items]))
+    for batch in DataLoader(Subset(windows, range(n)), batch_size=chunk):  # batched as the module's own val_dataloader
+        out = module.infer(batch["proposals"], batch["logits"], batch["kinematic"][0])
+        true.append(batch["params"])
         inferred.append(out["params"])
     return torch.cat(true).numpy(), torch.cat(inferred).numpy()
 
@@ -66,5 +66,4 @@ if __name__ == "__main__":
     if "--" not in args or args.index("--") < 2:
         sys.exit(__doc__)
     cut = args.index("--")
-    torch.set_grad_enabled(False)
     main(args[0], [int(s) for s in args[1:cut]], args[cut + 1 :])
