@@ -27,5 +27,7 @@ python run.py $COMMON task=train_inference model.inference.net.rigidness_estimat
   model.inference.trainer.max_time=00:00:55:00
 EVAL="$COMMON task=evaluate eval.proposals=exported"
 python run.py $EVAL ablation=full hydra.run.dir=$ROOT/eval_full
-python run.py -m $EVAL ablation=no_refinement,no_params hydra.sweep.dir=$ROOT/ablate
-python run.py task=report "task.dir=[$ROOT/eval_full,$ROOT/ablate]" hydra.run.dir=$ROOT/report
+python run.py $EVAL ablation=full ckpt.inference=$S57 hydra.run.dir=$ROOT/eval_s57     # the module unchanged, on these proposals
+# P on the training and the test videos from frame 20, and the proposals' error on each
+python scripts/experiments/param_by_window_start.py $ROOT/checkpoints/standard/fluid_cube/inference/last.ckpt 20 -- env=fluid_cube experiment=standard paths.root_dir=$ROOT
+python scripts/experiments/proposal_error_by_split.py $ROOT/data/standard fluid_cube
