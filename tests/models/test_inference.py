@@ -326,3 +326,35 @@ def test_param_rotation_turns_only_what_the_parameter_encoder_sees_in_training()
     assert not torch.allclose(turned(x, g, kin)["params"], first["params"])  # a new angle each call
     with pytest.raises(ValueError, match="param_rotation=true .* needs separate_param_net=true"):
         _modules(param_rotation=True, separate_param_net=False)
+
+
+def test_proposal_jitter_draws_one_std_per_window_up_to_the_maximum():
+    """add_proposal_jitter: every frame and particle its own draw (it shows as motion), with one std
+    per window uniform in [0, max_std]: the stds' mean is max_std / 2 and none exceeds it."""
+    from vgpl.models.inference import add_proposal_jitter
+
+    torch.manual_seed(0)
+    x = torch.rand(400, 6, 50, 3)
+    noise = add_proposal_jitter(x, 0.002) - x
+    per_window = noise.std((1, 2, 3))
+    assert per_window.max() < 0.002 * 1.05 and per_window.min() < 0.0002
+    assert abs(float(per_window.mean()) - 0.001) < 0.0001
+    lag1 = torch.corrcoef(torch.stack([noise[:, 1:].flatten(), noise[:, :-1].flatten()]))[0, 1]
+    assert abs(float(lag1)) < 0.01  # independent from frame to frame: it adds frame-to-frame motion
+
+
+def test_proposal_noise_enters_the_training_step_only():
+    """proposal_noise: the training step's loss sees jittered proposals (two steps differ), the
+    validation loss the proposals as they are (equal to a module without it); 0 is the paper's."""
+    torch.manual_seed(0)
+    dyn, plain = _modules()
+    _, noisy = _modules(proposal_noise=0.01)
+    noisy.load_state_dict(plain.state_dict())
+    noisy.attach_dynamics(dyn)  # the same frozen prior
+    batch = _batch()
+    torch.testing.assert_close(noisy._losses(batch)["loss"], plain._losses(batch)["loss"])
+    torch.testing.assert_close(plain._losses(batch, noise=True)["loss"], plain._losses(batch)["loss"])
+    assert not torch.allclose(noisy._losses(batch, noise=True)["loss"], noisy._losses(batch, noise=True)["loss"])
+    assert OmegaConf.load(REPO / "conf/model/vgpl.yaml").inference.net.proposal_noise == 0.0
+    with pytest.raises(ValueError, match=r"proposal_noise=-0\.001, expected a std in metres >= 0"):
+        _modules(proposal_noise=-0.001)
