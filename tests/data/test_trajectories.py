@@ -170,3 +170,44 @@ def test_a_shard_whose_frames_differ_from_the_splits_is_named(rendered, tmp_path
     with pytest.raises(DatasetError, match=rf"shard_00001.h5: 'images' of shape \[R, {t}, {height}, {width}, 3\], "
                                            rf"the split's first shard has \[R, {t}, {height}, {width + 8}, 3\]"):
         load_split(root, "mass_rope", "train", images=True, stream=stream)
+
+
+def test_first_rollout_skips_the_first_videos_in_memory_and_streamed(rendered):
+    """load_split(first_rollout=k): the rollouts from the k-th on (here from the middle of a shard
+    file), the same rows and videos as a whole read cut at k, in memory and streamed; none left
+    is an error naming the folder and the option."""
+    every = load_split(rendered, "mass_rope", "train", images=True)
+    for first, count in ((3, 2), (1, None), (4, 2)):
+        part = load_split(rendered, "mass_rope", "train", images=True, max_rollouts=count, first_rollout=first)
+        rows = slice(first, None if count is None else first + count)
+        assert part.rollout_ids.tolist() == every.rollout_ids[rows].tolist()
+        assert torch.equal(part.positions, every.positions[rows]) and torch.equal(part.images, every.images[rows])
+        streamed = load_split(rendered, "mass_rope", "train", images=True, max_rollouts=count, stream=True, first_rollout=first)
+        assert len(streamed.images) == len(part.images)
+        assert all(torch.equal(streamed.images[r, 0:6], part.images[r]) for r in range(len(part.images)))
+    with pytest.raises(DatasetError, match=r"mass_rope/train: 6 rollouts, none from first_rollout=6 on"):
+        load_split(rendered, "mass_rope", "train", first_rollout=6)
+
+
+def test_the_visual_stage_holds_out_the_inference_modules_videos(rendered, tmp_path, caplog):
+    """model.visual.first_rollout reaches the visual stage's training videos, and export_proposals
+    warns when the visual prior learned from any of the inference module's videos."""
+    from omegaconf import OmegaConf
+
+    from tests.conftest import REPO
+    from vgpl.data.video import VideoDataModule
+    from vgpl.tasks.train_visual import held_out_videos
+
+    for split in ("train", "test"):  # the six videos as both splits
+        (tmp_path / "mass_rope").mkdir(exist_ok=True)
+        (tmp_path / "mass_rope" / split).symlink_to(rendered / "mass_rope" / "train")
+    dm = VideoDataModule(str(tmp_path), "mass_rope", first_rollout=4)
+    dm.setup()
+    assert dm.train.rollout_ids.tolist() == [4, 5] and len(dm.test.rollout_ids) == 6
+    assert OmegaConf.load(REPO / "conf/model/vgpl.yaml").visual.first_rollout == 0
+    trained = OmegaConf.create({"model": {"visual": {"first_rollout": 300}}})
+    with caplog.at_level("WARNING"):
+        assert held_out_videos(trained, 300) == 300
+        assert caplog.text == ""
+        assert held_out_videos(OmegaConf.create({"model": {"visual": {}}}), 300) == 0  # a checkpoint from before the key
+    assert "the visual prior trained on training videos from 0 on, among them the inference module's (model.inference.max_rollouts=300)" in caplog.text

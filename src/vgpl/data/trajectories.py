@@ -43,23 +43,29 @@ class Rollouts:
 
 
 def load_split(root: str | Path, env: str, split: str, images: bool = False, max_rollouts: int | None = None,
-               stream: bool = False, velocities: bool = False) -> Rollouts:
-    """Read the shards of ``root/env/split`` (validated), in rollout order; the first
-    ``max_rollouts`` rollouts only when given (only those are read). Videos are read straight
-    into one array, with no copy per shard, or with ``stream=True`` left in their files and read
-    window by window (StreamedVideos: memory independent of the split's size)."""
+               stream: bool = False, velocities: bool = False, first_rollout: int = 0) -> Rollouts:
+    """Read the shards of ``root/env/split`` (validated), in rollout order: ``max_rollouts``
+    rollouts (None: every one) from the ``first_rollout``-th on, and only the files that hold them.
+    Videos are read straight into one array, with no copy per shard, or with ``stream=True`` left
+    in their files and read window by window (StreamedVideos: memory independent of the split's size)."""
     folder = Path(root) / env / split
     files = sorted(folder.glob("shard_*.h5"))
     if not files:
         raise DatasetError(f"{folder}: no shard_*.h5 files (generate them with task=generate env={env})")
+    if first_rollout < 0:
+        raise ValueError(f"load_split: first_rollout={first_rollout}, expected >= 0")
     # shard files hold consecutive rollouts in order, so the first files suffice
-    read = list(read_first_rollouts(files, max_rollouts))  # the video, if asked for, is read below, straight into one array
+    last = None if max_rollouts is None else first_rollout + max_rollouts
+    read = list(read_first_rollouts(files, last))  # the video, if asked for, is read below, straight into one array
     shards = [shard for _, shard in read]
-    order = np.argsort(np.concatenate([s.rollout_ids for s in shards]), kind="stable")
+    order = np.argsort(np.concatenate([s.rollout_ids for s in shards]), kind="stable")[first_rollout:]  # the kept rollouts
+    if len(order) == 0:
+        raise DatasetError(f"{folder}: {sum(len(s.rollout_ids) for s in shards)} rollouts, none from first_rollout={first_rollout} on")
     cat = lambda key: torch.as_tensor(np.concatenate([getattr(s, key) for s in shards])[order])  # noqa: E731
     first = shards[0]
-    counts = [(f, len(s.rollout_ids)) for f, s in read]
-    videos = None if not images else _stream_videos(counts, order) if stream else _read_videos(counts, order)
+    in_files = [(f, i) for f, s in read for i in range(len(s.rollout_ids))]
+    sources = [in_files[k] for k in order]  # (shard file, index in it) of each kept rollout
+    videos = None if not images else StreamedVideos(sources) if stream else _read_videos(sources)
     return Rollouts(
         cat("positions"), cat("params"), cat("actions"), torch.as_tensor(first.instance), torch.as_tensor(first.rigid),
         torch.as_tensor(np.asarray(first.attrs["param_low"], np.float32)), torch.as_tensor(np.asarray(first.attrs["param_high"], np.float32)),
@@ -67,25 +73,24 @@ def load_split(root: str | Path, env: str, split: str, images: bool = False, max
     )
 
 
-def _stream_videos(files: list[tuple[Path, int]], order: np.ndarray) -> StreamedVideos:
-    """The first n videos of each (shard file, n), left in their files, in rollout order."""
-    in_files = [(path, i) for path, n in files for i in range(n)]
-    return StreamedVideos([in_files[k] for k in order])
-
-
-def _read_videos(files: list[tuple[Path, int]], order: np.ndarray) -> torch.Tensor:
-    """The first n videos of each (shard file, n) into one uint8 array [R, T, H, W, 3] (h5py
-    reads straight into it, one file open each), then put in rollout order."""
-    out, start = None, 0
-    for path, n in files:
+def _read_videos(sources: list[tuple[Path, int]]) -> torch.Tensor:
+    """The videos at (shard file, index in it), in this order, into one uint8 array [R, T, H, W, 3]:
+    each file opened once, and h5py reads each run of consecutive rollouts straight into it."""
+    out = None
+    rows_of: dict[Path, list[tuple[int, int]]] = {}
+    for row, (path, i) in enumerate(sources):
+        rows_of.setdefault(path, []).append((row, i))
+    for path, rows in rows_of.items():
         with h5py.File(path, "r") as h:
             shape = video_frame_shape(h, path, None if out is None else out.shape[1:])
             if out is None:
-                out = np.empty((sum(k for _, k in files), *shape), np.uint8)
-            h["images"].read_direct(out, np.s_[:n], np.s_[start : start + n])
-        start += n
-    if not np.array_equal(order, np.arange(len(order))):
-        out = out[order]
+                out = np.empty((len(sources), *shape), np.uint8)
+            start = 0
+            for k in range(1, len(rows) + 1):  # split into runs where row and index both step by one
+                if k == len(rows) or rows[k] != (rows[k - 1][0] + 1, rows[k - 1][1] + 1):
+                    (row, i), n = rows[start], k - start
+                    h["images"].read_direct(out, np.s_[i : i + n], np.s_[row : row + n])
+                    start = k
     return torch.from_numpy(out)
 
 

@@ -36,11 +36,13 @@ class VideoDataModule(L.LightningDataModule):
 
     ``stream``: read the training videos window by window from their shard files instead of
     holding them in memory (a 900-video RigidFall split is 6.2 GB of uint8, a MassRope one 10 GB);
-    the test videos are held in memory either way."""
+    the test videos are held in memory either way. ``first_rollout``: train on the training videos
+    from this one on, so that the first ones (the inference module's, ``model.inference.max_rollouts``)
+    are held out and their proposals err as the test videos' do."""
 
     def __init__(self, root: str, env: str, frames: int = 4, batch_size: int = 32, start_frame: int = 0, stride: int = 1,
                  max_rollouts: int | None = None, max_test_rollouts: int | None = None, num_workers: int = 0,
-                 stream: bool = False) -> None:
+                 stream: bool = False, first_rollout: int = 0) -> None:
         super().__init__()
         self.save_hyperparameters()
         self.train: Rollouts | None = None
@@ -48,7 +50,8 @@ class VideoDataModule(L.LightningDataModule):
     def setup(self, stage: str | None = None) -> None:
         if self.train is None:
             hp = self.hparams
-            self.train = load_split(hp.root, hp.env, "train", images=True, max_rollouts=hp.max_rollouts, stream=hp.stream)
+            self.train = load_split(hp.root, hp.env, "train", images=True, max_rollouts=hp.max_rollouts, stream=hp.stream,
+                                    first_rollout=hp.first_rollout)
             self.test = load_split(hp.root, hp.env, "test", images=True, max_rollouts=hp.max_test_rollouts)
             self.stats = NormStats.from_rollouts(self.train)
 

@@ -30,7 +30,8 @@ def train_visual(cfg: DictConfig) -> dict:
     scene = scene_of(cfg)
     spec = cfg.model.visual
     dm = VideoDataModule(cfg.data.root, scene.name, spec.frames, spec.batch_size, cfg.env.get("start_frame", 0), spec.frame_stride,
-                         spec.max_rollouts, cfg.eval.get("max_rollouts"), stream=bool(spec.get("stream_video", False)))
+                         spec.max_rollouts, cfg.eval.get("max_rollouts"), stream=bool(spec.get("stream_video", False)),
+                         first_rollout=int(spec.get("first_rollout", 0)))
     dm.setup()
     model: VisualPrior = hydra.utils.instantiate(spec.net, _convert_="all", n_particles=scene.n_particles, n_instances=scene.n_instances, frames=spec.frames)
     model.set_stats(dm.stats)
@@ -100,10 +101,11 @@ def export_proposals(cfg: DictConfig) -> dict:
     setup_run(cfg)
     scene = scene_of(cfg)
     frames = proposal_frames(cfg)
-    model, ckpt = None, None
+    model, ckpt, seen = None, None, {}
     if source == "visual":
         ckpt = stage_checkpoint(cfg, "visual")
-        model, _ = load_stage(ckpt, VisualPrior, env=scene.name, n_particles=scene.n_particles)
+        model, trained = load_stage(ckpt, VisualPrior, env=scene.name, n_particles=scene.n_particles)
+        seen = {"visual_first_rollout": held_out_videos(trained, cfg.model.inference.get("max_rollouts"))}
         if torch.cuda.is_available():  # the windows are independent: propose them on the GPU where there is one
             model = model.cuda()
     paths = {}
@@ -114,4 +116,17 @@ def export_proposals(cfg: DictConfig) -> dict:
             path = export_truth_split(cfg.data.root, scene.name, split, noise_std, cfg.seed + i, limit, frames)
         paths[split] = str(path)
         log.info("%s proposals of the %s split (%s frames): %s", source, split, "all" if frames is None else frames, paths[split])
-    return {"env": scene.name, "source": source, "noise_std": noise_std, **paths}
+    return {"env": scene.name, "source": source, "noise_std": noise_std, **seen, **paths}
+
+
+def held_out_videos(trained: DictConfig, module_videos: int | None) -> int:
+    """The first training video the visual prior (its training config ``trained``) learned from;
+    warns when it learned from any of the inference module's first ``module_videos`` (None: all):
+    the proposals of those can be cleaner than the test videos', and a module that reads P from
+    them is then offset on the test ones (FluidCube, session 59)."""
+    first = int(trained.model.visual.get("first_rollout", 0))
+    if module_videos is None or first < module_videos:
+        log.warning("the visual prior trained on training videos from %d on, among them the inference module's (model.inference.max_rollouts=%s): "
+                    "their proposals can fit better than the test videos'; model.visual.first_rollout=%s holds them out",
+                    first, module_videos, module_videos)
+    return first
