@@ -8,7 +8,7 @@
 #   2. here (2-core CPU): ROOT/data/standard/fluid_cube/{train,test} are the standard data (task=generate),
 #      ROOT/checkpoints/standard/fluid_cube/dynamics session 56's projected prior, PARTS the call's files,
 #      S57 session 57's bernoulli module (last.ckpt).
-# Usage: bash scripts/experiments/fluid_cube_recipe.sh ROOT PARTS S57
+# Usage: bash scripts/experiments/fluid_cube_recipe.sh ROOT PARTS S57   [env: ROOT60=... for session 60's part]
 set -euo pipefail
 ROOT=$1; PARTS=$2; S57=$3
 COMMON="env=fluid_cube experiment=standard paths.root_dir=$ROOT env.start_frame=20 env.rigid_head=projected model.inference.window_span=10"
@@ -31,3 +31,13 @@ python run.py $EVAL ablation=full ckpt.inference=$S57 hydra.run.dir=$ROOT/eval_s
 # P on the training and the test videos from frame 20, and the proposals' error on each
 python scripts/experiments/param_by_window_start.py $ROOT/checkpoints/standard/fluid_cube/inference/last.ckpt 20 -- env=fluid_cube experiment=standard paths.root_dir=$ROOT
 python scripts/experiments/proposal_error_by_split.py $ROOT/data/standard fluid_cube
+# Session 60 (docs/experiments.md, "session 60"): the module above fine-tuned 50 min on jittered proposals (952 steps),
+# into a root of its own (ROOT60: the same data, proposals and prior, linked), then read under added jitter
+if [ -n "${ROOT60:-}" ]; then
+  COMMON60="env=fluid_cube experiment=standard paths.root_dir=$ROOT60 env.start_frame=20 env.rigid_head=projected model.inference.window_span=10"
+  python run.py $COMMON60 task=train_inference model.inference.net.rigidness_estimator=bernoulli \
+    model.inference.init_from=$ROOT/checkpoints/standard/fluid_cube/inference/last.ckpt model.inference.net.proposal_noise=0.002 \
+    model.inference.trainer.max_time=00:00:50:00
+  python run.py $COMMON60 task=evaluate eval.proposals=exported ablation=full hydra.run.dir=$ROOT60/eval_full
+  python scripts/experiments/param_under_jitter.py $ROOT60/checkpoints/standard/fluid_cube/inference/last.ckpt test 20 0 0.5 1 2 -- $COMMON60
+fi
