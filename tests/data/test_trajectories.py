@@ -210,4 +210,5 @@ def test_the_visual_stage_holds_out_the_inference_modules_videos(rendered, tmp_p
         assert held_out_videos(trained, 300) == 300
         assert caplog.text == ""
         assert held_out_videos(OmegaConf.create({"model": {"visual": {}}}), 300) == 0  # a checkpoint from before the key
-    assert "the visual prior trained on training videos from 0 on, among them the inference module's (model.inference.max_rollouts=300)" in caplog.text
+    assert ("the visual prior trained on training videos from 0 on, among them the inference module's (model.inference.max_rollouts=300): "
+            "their proposals can fit better than the test videos'; model.visual.first_rollout=300 holds them out") in caplog.text

@@ -126,7 +126,8 @@ def held_out_videos(trained: DictConfig, module_videos: int | None) -> int:
     them is then offset on the test ones (FluidCube, session 59)."""
     first = int(trained.model.visual.get("first_rollout", 0))
     if module_videos is None or first < module_videos:
+        fix = (f"; model.visual.first_rollout={module_videos} holds them out" if module_videos is not None
+               else ": every training video is the module's (model.inference.max_rollouts=null), so none can be held out")
         log.warning("the visual prior trained on training videos from %d on, among them the inference module's (model.inference.max_rollouts=%s): "
-                    "their proposals can fit better than the test videos'; model.visual.first_rollout=%s holds them out",
-                    first, module_videos, module_videos)
+                    "their proposals can fit better than the test videos'%s", first, module_videos, fix)
     return first
