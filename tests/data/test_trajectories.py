@@ -212,3 +212,18 @@ def test_the_visual_stage_holds_out_the_inference_modules_videos(rendered, tmp_p
         assert held_out_videos(OmegaConf.create({"model": {"visual": {}}}), 300) == 0  # a checkpoint from before the key
     assert ("the visual prior trained on training videos from 0 on, among them the inference module's (model.inference.max_rollouts=300): "
             "their proposals can fit better than the test videos'; model.visual.first_rollout=300 holds them out") in caplog.text
+
+
+def test_videos_come_in_rollout_order_whatever_the_files_order(rendered, tmp_path):
+    """Shard files whose names sort against their rollout ids (here the first and last of three
+    swapped): load_split still gives rollouts, and their videos, in rollout order."""
+    files = sorted((rendered / "mass_rope" / "train").glob("shard_*.h5"))
+    folder = tmp_path / "mass_rope" / "train"
+    folder.mkdir(parents=True)
+    for name, source in zip(files, [files[2], files[1], files[0]]):
+        (folder / name.name).symlink_to(source)
+    every = load_split(rendered, "mass_rope", "train", images=True)
+    for stream in (False, True):
+        swapped = load_split(tmp_path, "mass_rope", "train", images=True, stream=stream, first_rollout=1)
+        assert swapped.rollout_ids.tolist() == [1, 2, 3, 4, 5] and torch.equal(swapped.positions, every.positions[1:])
+        assert all(torch.equal(swapped.images[r, 0:6], every.images[r + 1]) for r in range(5))
