@@ -358,3 +358,42 @@ def test_proposal_noise_enters_the_training_step_only():
     assert OmegaConf.load(REPO / "conf/model/vgpl.yaml").inference.net.proposal_noise == 0.0
     with pytest.raises(ValueError, match=r"proposal_noise=-0\.001, expected a std in metres >= 0"):
         _modules(proposal_noise=-0.001)
+
+
+def test_blend_then_bernoulli_switches_at_its_step_and_the_checkpoint_keeps_it(tmp_path):
+    """bernoulli_from_step=k: the first k training steps are the blend's (no rigidness loss, the
+    prior sees Q), the rest bernoulli's (a rigidness loss, the prior sees the label); the checkpoint
+    records the estimator the fit ended with, so evaluating or resuming it sees bernoulli; a
+    checkpoint without that record keeps its hparams' estimator; k needs the blend."""
+
+    class RigidnessLoss(L.Callback):  # which steps had a rigidness loss
+        def __init__(self):
+            self.steps = []
+
+        def on_train_batch_end(self, trainer, module, outputs, batch, batch_idx):
+            self.steps.append((module.global_step - 1, "train/rigidness" in trainer.callback_metrics, module.estimator))
+
+    torch.manual_seed(0)
+    _, inf = _modules(bernoulli_from_step=3)
+    assert inf.estimator == "blend"
+    batch = _batch(b=1)
+    seen = RigidnessLoss()
+    trainer = L.Trainer(max_steps=5, logger=False, enable_progress_bar=False, enable_model_summary=False, enable_checkpointing=False,
+                        default_root_dir=tmp_path, callbacks=[seen])
+    trainer.fit(inf, DataLoader([{k: v[0] for k, v in batch.items()} for _ in range(5)], batch_size=1))
+    assert [(s, had, e) for s, had, e in seen.steps] == [(0, False, "blend"), (1, False, "blend"), (2, False, "blend"),
+                                                        (3, True, "bernoulli"), (4, True, "bernoulli")]
+    trainer.save_checkpoint(tmp_path / "switched.ckpt")
+    loaded = InferenceModule.load_from_checkpoint(tmp_path / "switched.ckpt", map_location="cpu")
+    assert loaded.estimator == "bernoulli" and loaded.hparams.rigidness_estimator == "blend"
+    prob = torch.tensor([[0.3, 0.8]])
+    assert torch.equal(loaded.prior_rigidness(prob), torch.tensor([[0.0, 1.0]]))
+    old = torch.load(tmp_path / "switched.ckpt", weights_only=False)
+    del old["rigidness_estimator"]
+    torch.save(old, tmp_path / "old.ckpt")
+    before = InferenceModule.load_from_checkpoint(tmp_path / "old.ckpt", map_location="cpu")
+    assert before.estimator == "blend" and torch.equal(before.prior_rigidness(prob), prob)
+    assert OmegaConf.load(REPO / "conf/model/vgpl.yaml").inference.net.bernoulli_from_step is None
+    for bad in ({"bernoulli_from_step": 3, "rigidness_estimator": "bernoulli"}, {"bernoulli_from_step": 0}):
+        with pytest.raises(ValueError, match=r"bernoulli_from_step=\d with rigidness_estimator='\w+', expected a step >= 1 with 'blend'"):
+            _modules(**bad)

@@ -28,6 +28,9 @@ sees the label Q > 0.5, and Q learns from the expected trajectory L1 over the la
 Q L1(rigid) + (1 - Q) L1(free), exact per instance: every instance's label is flipped in turn in
 one more rollout of the trajectory that trains P (no gradient; ``flipped_label_errors``,
 ``expected_rigidness_error``). That loss is logged as train/ and val/rigidness and adds to val/loss.
+From nothing ``bernoulli`` drives FluidCube's cube to a wrong label (session 59) where a blend-trained
+module fine-tuned with it reads both objects (session 57): ``bernoulli_from_step`` k trains with the
+blend for k steps, then with ``bernoulli``, in one run (the checkpoint records the estimator it ended with).
 
 ``proposal_noise`` s > 0 (not the paper) adds independent Gaussian noise to every proposal of every
 training window, of a std drawn per window uniformly in [0, s] metres (``add_proposal_jitter``):
@@ -37,6 +40,8 @@ range (+0.6 to -25.9), static offsets of 2 mm by less than 0.1; fine-tuned with 
 """
 
 from __future__ import annotations
+
+import logging
 
 import lightning as L
 import torch
@@ -50,6 +55,8 @@ from vgpl.graph import edge_features, radius_graph
 from vgpl.models.step_learning_rate import AnnealedLearningRate
 from vgpl.nn.normalisation import NormalisationBuffers
 from vgpl.nn.propagation import EdgeEncoder, Propagator
+
+log = logging.getLogger(__name__)
 
 
 def add_proposal_jitter(proposals: torch.Tensor, max_std: float) -> torch.Tensor:
@@ -131,6 +138,7 @@ class InferenceModule(AnnealedLearningRate, NormalisationBuffers, L.LightningMod
         instance_types: list[str] | None = None,
         rigidness_estimator: str = "blend",
         proposal_noise: float = 0.0,
+        bernoulli_from_step: int | None = None,
     ) -> None:
         super().__init__()
         if param_rotation and not separate_param_net:
@@ -143,6 +151,9 @@ class InferenceModule(AnnealedLearningRate, NormalisationBuffers, L.LightningMod
         if rigidness_estimator not in ("blend", "bernoulli"):
             raise ValueError(f"InferenceModule: rigidness_estimator={rigidness_estimator!r}, expected 'blend' (the paper: Q is the prior's "
                              "blend weight) or 'bernoulli' (Q is the probability of the label the prior sees)")
+        if bernoulli_from_step is not None and (rigidness_estimator != "blend" or not bernoulli_from_step >= 1):
+            raise ValueError(f"InferenceModule: bernoulli_from_step={bernoulli_from_step!r} with rigidness_estimator={rigidness_estimator!r}, "
+                             "expected a step >= 1 with 'blend' (blend until that step, then bernoulli), or null")
         if not proposal_noise >= 0:
             raise ValueError(f"InferenceModule: proposal_noise={proposal_noise!r}, expected a std in metres >= 0 (0: off, the paper)")
         if param_lr is not None and not param_lr > 0:
@@ -159,6 +170,7 @@ class InferenceModule(AnnealedLearningRate, NormalisationBuffers, L.LightningMod
         self.rigid_head = MLP([2 * width, width, 1], norm=None)
         self.param_head = MLP([2 * width, width, len(param_low)], norm=None)
         self.dynamics = None  # the frozen DynamicsPrior (attach_dynamics); not part of this checkpoint
+        self.estimator = rigidness_estimator  # the one in use: blend turns bernoulli at bernoulli_from_step; saved in the checkpoint
 
     def attach_dynamics(self, dynamics) -> None:
         """Use ``dynamics`` (frozen, eval mode) in the training loss; it is not saved with this module."""
@@ -232,7 +244,7 @@ class InferenceModule(AnnealedLearningRate, NormalisationBuffers, L.LightningMod
 
     def prior_rigidness(self, prob: torch.Tensor) -> torch.Tensor:
         """Q [B, M] -> the rigidness the dynamics prior is given: Q (``blend``), or the label Q > 0.5 (``bernoulli``)."""
-        return (prob > 0.5).to(prob) if self.hparams.rigidness_estimator == "bernoulli" else prob
+        return (prob > 0.5).to(prob) if self.estimator == "bernoulli" else prob
 
     @torch.no_grad()
     def flipped_label_errors(self, start, target, grouping, labels, params, planes, kinematic, n_roll) -> torch.Tensor:
@@ -303,7 +315,7 @@ class InferenceModule(AnnealedLearningRate, NormalisationBuffers, L.LightningMod
             error = ((future - targets) / scale).abs()[:, :, movable]
             for i, name in enumerate(runs):  # "both": P learns from the true start only, dX through the refined one
                 losses[name] = error[i * b : (i + 1) * b].mean()
-            if self.hparams.rigidness_estimator == "bernoulli" and self.hparams.rigidness:
+            if self.estimator == "bernoulli" and self.hparams.rigidness:
                 # Q's only loss: the label of each instance flipped on the trajectory that trains P
                 i = list(runs).index("rollout_from_truth") if "rollout_from_truth" in runs else 0
                 scenes = slice(i * b, (i + 1) * b)
@@ -345,6 +357,20 @@ class InferenceModule(AnnealedLearningRate, NormalisationBuffers, L.LightningMod
     def on_fit_start(self) -> None:
         if self.dynamics is not None:
             self.dynamics.to(self.device)
+
+    def on_train_batch_start(self, batch, batch_idx) -> None:
+        super().on_train_batch_start(batch, batch_idx)
+        k = self.hparams.bernoulli_from_step
+        if k is not None and self.estimator == "blend" and self.global_step >= k:
+            self.estimator = "bernoulli"
+            log.info(f"InferenceModule: step {self.global_step}: Q is now trained as bernoulli (bernoulli_from_step={k})")
+
+    def on_save_checkpoint(self, checkpoint: dict) -> None:
+        checkpoint["rigidness_estimator"] = self.estimator
+
+    def on_load_checkpoint(self, checkpoint: dict) -> None:
+        """The estimator the checkpoint was saved with (a resumed or evaluated blend-then-bernoulli run)."""
+        self.estimator = checkpoint.get("rigidness_estimator", self.hparams.rigidness_estimator)
 
     def param_pathway(self) -> list[nn.Parameter]:
         """The weights only P's loss reaches: the parameter head, and the parameter encoder when separate."""

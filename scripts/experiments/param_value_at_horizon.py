@@ -1,0 +1,110 @@
+"""What is knowing the physical parameter worth at the evaluation's horizons? (session 61, a diagnostic)
+
+"Full VGPL has the lowest T+20 of the four ablations" needs the parameter to matter at T+20. This
+restarts the ENGINE from the recorded state of the last observed frame (start + observed - 1) of
+each test video, and rolls the DYNAMICS PRIOR from the true last H observed frames (true grouping
+and rigidness), each with several parameter sets: the truth, the range midpoint, and the parameters
+of evaluations' ``params.csv`` (column ``inferred_<name>``: full VGPL's P, or w/o param. est.'s
+uniform draws). Printed: future MSE x 1e4 at T+1/5/10/20 against the recording, and each set minus
+the truth at the last horizon (paired bootstrap over videos). The engine's row is the most any
+estimate of P can buy; the prior's what this prior gives for it from a perfect start.
+
+Usage: python scripts/experiments/param_value_at_horizon.py DYNAMICS_CKPT ROOT START [LABEL=params.csv ...]
+         [--observed 10] [--steps 20] [--videos 100] [--json out.json]
+e.g.   python scripts/experiments/param_value_at_horizon.py /tmp/r/checkpoints/standard/fluid_cube/dynamics/last.ckpt \
+         /tmp/r/data/standard 20 vgpl=/tmp/r/eval_full/params.csv uniform=/tmp/r/ablate/1/params.csv
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import platform
+import time
+
+import torch
+
+from vgpl.checkpoint import scene_of
+from vgpl.data.trajectories import load_split, true_window
+from vgpl.eval.error_breakdown import rollout_mse_x1e4
+from vgpl.eval.paired import paired_bootstrap
+from vgpl.eval.param_response import engine_from_frame
+from vgpl.eval.rollout import future_mse, rollout
+from vgpl.tasks.train_dynamics import load_dynamics
+
+
+def params_from_csv(path: str, names: list[str], rollout_ids: torch.Tensor) -> torch.Tensor:
+    """[R, P] the ``inferred_<name>`` columns of an evaluation's params.csv, in the order of ``rollout_ids``."""
+    with open(path) as f:
+        rows = {int(r["rollout_id"]): r for r in csv.DictReader(f)}
+    missing = [int(i) for i in rollout_ids if int(i) not in rows]
+    if missing:
+        raise ValueError(f"{path}: no row for test rollouts {missing[:5]}{'...' if len(missing) > 5 else ''}; expected a params.csv "
+                         "of task=evaluate on the same test split")
+    try:
+        return torch.tensor([[float(rows[int(i)][f"inferred_{n}"]) for n in names] for i in rollout_ids])
+    except KeyError as e:
+        raise ValueError(f"{path}: no column {e}, expected inferred_<name> for {names}") from None
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("checkpoint", help="the dynamics prior's checkpoint")
+    parser.add_argument("root", help="dataset root with <env>/test shards")
+    parser.add_argument("start", type=int, help="the evaluation's first observed frame (env.start_frame)")
+    parser.add_argument("sets", nargs="*", help="LABEL=params.csv of an evaluation")
+    parser.add_argument("--observed", type=int, default=10)
+    parser.add_argument("--steps", type=int, default=20)
+    parser.add_argument("--videos", type=int, default=100)
+    parser.add_argument("--json", help="write the numbers here")
+    args = parser.parse_args()
+    torch.set_grad_enabled(False)
+    began = time.time()
+    model, cfg = load_dynamics(args.checkpoint)
+    model.eval()
+    scene = scene_of(cfg)
+    h = model.hparams.history
+    test = load_split(args.root, scene.name, "test", max_rollouts=args.videos, velocities=True)
+    n = test.positions.shape[0]
+    last_seen = args.start + args.observed - 1
+    positions, grouping, rigidness, true_params, planes, kinematic = true_window(scene, test, last_seen - h + 1, h + args.steps, n)
+    recorded = positions[:, h:]
+    sets = {"truth": true_params, "midpoint": ((test.param_low + test.param_high) / 2).expand(n, -1).clone()}
+    for item in args.sets:
+        label, _, path = item.partition("=")
+        if not path:
+            raise ValueError(f"{item!r}: expected LABEL=path/to/params.csv")
+        sets[label] = params_from_csv(path, list(scene.param_names), test.rollout_ids[:n])
+    results = {}
+    for source in ("engine", "prior"):
+        errors = {}
+        for label, p in sets.items():
+            if source == "engine":
+                pred = engine_from_frame(scene, test, last_seen, args.steps, p)
+            else:
+                pred = rollout(model, positions, grouping, rigidness, p, planes, kinematic, args.steps)
+            errors[label] = rollout_mse_x1e4(pred, recorded, args.steps)
+            results[f"{source}/{label}"] = future_mse(pred, recorded) | {"per_video_last": errors[label].tolist()}
+        print(f"\n{source} from the recorded frame {last_seen} ({n} videos, {time.time() - began:.0f} s): future MSE x 1e4")
+        print(f"| P | T+1 | T+5 | T+10 | T+{args.steps} | T+{args.steps} minus truth [95%], truth lower on |")
+        print("|---|---|---|---|---|---|")
+        for label in sets:
+            m = results[f"{source}/{label}"]
+            cells = " | ".join(f"{m[f'future_mse_x1e4@{k}']:.3f}" for k in (1, 5, 10, args.steps))
+            diff = ""
+            if label != "truth":
+                b = paired_bootstrap(errors["truth"], errors[label])
+                results[f"{source}/{label}"]["minus_truth"] = b
+                diff = f"{b['mean_diff']:+.3f} [{b['low']:+.3f}, {b['high']:+.3f}], {100 * b['reference_lower_share']:.0f}%"
+            print(f"| {label} | {cells} | {diff} |")
+    if args.json:
+        meta = {"checkpoint": args.checkpoint, "root": args.root, "env": scene.name, "start": args.start, "observed": args.observed,
+                "steps": args.steps, "videos": n, "sets": args.sets, "machine": platform.processor() or platform.machine(),
+                "torch": torch.__version__, "seconds": time.time() - began}
+        with open(args.json, "w") as f:
+            json.dump(meta | {"results": results}, f, indent=1)
+
+
+if __name__ == "__main__":
+    main()
