@@ -10,29 +10,16 @@ Usage: python scripts/experiments/paired_evaluations.py --env rigid_fall A_DIR B
 from __future__ import annotations
 
 import argparse
-import csv
 from pathlib import Path
 
 import torch
 
 from vgpl.eval.metrics import param_error_pct
 from vgpl.eval.paired import paired_bootstrap
+from vgpl.eval.tables import read_params_csv
 from vgpl.sim.envs import ENVS, make_scene
 
-
-def read_params(folder: Path, names: list[str]) -> dict[int, tuple[list[float], list[float], float]]:
-    """rollout id -> (true P, inferred P, T+20 MSE x 1e4) from ``folder``/params.csv."""
-    path = folder / "params.csv"
-    if not path.is_file():
-        raise SystemExit(f"{path}: no params.csv (a task=evaluate output folder was expected)")
-    with path.open() as f:
-        rows = list(csv.DictReader(f))
-    needed = [f"true_{n}" for n in names] + [f"inferred_{n}" for n in names] + ["future_mse_x1e4@20"]
-    missing = [k for k in needed if k not in rows[0]]
-    if missing:
-        raise SystemExit(f"{path}: columns {missing} missing (expected {needed}: is it another env's?)")
-    return {int(r["rollout_id"]): ([float(r[f"true_{n}"]) for n in names], [float(r[f"inferred_{n}"]) for n in names],
-                                   float(r["future_mse_x1e4@20"])) for r in rows}
+T20 = "future_mse_x1e4@20"  # the per-video column task=evaluate writes to params.csv
 
 
 def main() -> None:
@@ -45,15 +32,17 @@ def main() -> None:
     scene = make_scene(args.env)  # its parameter names and ranges, as pooled_minimum.py reads them
     low, high = torch.as_tensor(scene.param_low), torch.as_tensor(scene.param_high)
     names = list(scene.param_names)
-    runs = [read_params(d, names) for d in args.dirs]
-    ids = sorted(set.intersection(*(set(r) for r in runs)))
+    try:
+        runs = [read_params_csv(d / "params.csv", names, (T20,)) for d in args.dirs]
+    except ValueError as e:
+        raise SystemExit(str(e)) from None
+    ids = sorted(set.intersection(*(set(r.rollout_ids) for r in runs)))
     if not ids:
         raise SystemExit(f"{[str(d) for d in args.dirs]}: no test video in common")
     errors, future = [], []
-    for run in runs:
-        truth, pred = (torch.tensor([run[i][k] for i in ids]) for k in (0, 1))
-        errors.append(param_error_pct(pred, truth, low, high).mean(1))  # [R]
-        future.append(torch.tensor([run[i][2] for i in ids]))
+    for run in (r.select(ids) for r in runs):
+        errors.append(param_error_pct(run.inferred, run.truth, low, high).mean(1))  # [R]
+        future.append(run.columns[T20])
     print(f"{args.env}, {len(ids)} test videos in common; B - A paired by video, 95% bootstrap interval")
     print(f"A {args.dirs[0]}: parameter MAE {errors[0].mean():.2f}% (std {errors[0].std():.2f}), T+20 {future[0].mean():.1f} (median {future[0].median():.1f})")
     for d, e, f in zip(args.dirs[1:], errors[1:], future[1:]):

@@ -18,7 +18,6 @@ e.g.   python scripts/experiments/param_value_at_horizon.py /tmp/r/checkpoints/s
 from __future__ import annotations
 
 import argparse
-import csv
 import json
 import platform
 import time
@@ -31,21 +30,8 @@ from vgpl.eval.error_breakdown import rollout_mse_x1e4
 from vgpl.eval.paired import paired_bootstrap
 from vgpl.eval.param_response import engine_from_frame
 from vgpl.eval.rollout import future_mse, rollout
+from vgpl.eval.tables import read_params_csv
 from vgpl.tasks.train_dynamics import load_dynamics
-
-
-def params_from_csv(path: str, names: list[str], rollout_ids: torch.Tensor) -> torch.Tensor:
-    """[R, P] the ``inferred_<name>`` columns of an evaluation's params.csv, in the order of ``rollout_ids``."""
-    with open(path) as f:
-        rows = {int(r["rollout_id"]): r for r in csv.DictReader(f)}
-    missing = [int(i) for i in rollout_ids if int(i) not in rows]
-    if missing:
-        raise ValueError(f"{path}: no row for test rollouts {missing[:5]}{'...' if len(missing) > 5 else ''}; expected a params.csv "
-                         "of task=evaluate on the same test split")
-    try:
-        return torch.tensor([[float(rows[int(i)][f"inferred_{n}"]) for n in names] for i in rollout_ids])
-    except KeyError as e:
-        raise ValueError(f"{path}: no column {e}, expected inferred_<name> for {names}") from None
 
 
 def main() -> None:
@@ -75,7 +61,7 @@ def main() -> None:
         label, _, path = item.partition("=")
         if not path:
             raise ValueError(f"{item!r}: expected LABEL=path/to/params.csv")
-        sets[label] = params_from_csv(path, list(scene.param_names), test.rollout_ids[:n])
+        sets[label] = read_params_csv(path, list(scene.param_names)).select(test.rollout_ids[:n].tolist()).inferred
     results = {}
     for source in ("engine", "prior"):
         errors = {}

@@ -12,12 +12,12 @@ Usage: python scripts/experiments/pooled_minimum.py ENV PARAM ORACLE_METRICS_JSO
 
 from __future__ import annotations
 
-import csv
 import json
 import sys
 
 import numpy as np
 
+from vgpl.eval.tables import read_params_csv
 from vgpl.sim.envs import make_scene
 
 
@@ -38,12 +38,12 @@ def main(env: str, param: str, oracle: str, evaluations: list[str]) -> None:
     j = scene.param_names.index(param)
     low, high = float(scene.param_low[j]), float(scene.param_high[j])
     pct = lambda v: 100 * v / (high - low)  # noqa: E731
-    grid, vertex = pooled_minimum(json.load(open(oracle))[f"rollout_l1_over_grid/{param}"], low, high)
+    with open(oracle) as f:
+        grid, vertex = pooled_minimum(json.load(f)[f"rollout_l1_over_grid/{param}"], low, high)
     print(f"{env} {param}: pooled minimum of the prior's rollout L1 {grid:.4g} on the grid, {vertex:.4g} by parabola ({oracle})")
     for path in evaluations:
-        rows = list(csv.DictReader(open(path)))
-        true = np.array([float(r[f"true_{param}"]) for r in rows])
-        inferred = np.array([float(r[f"inferred_{param}"]) for r in rows])
+        table = read_params_csv(path, [param])
+        true, inferred = table.truth[:, 0].numpy(), table.inferred[:, 0].numpy()
         print(f"  {path}: true mean {true.mean():.4g}, inferred mean {inferred.mean():.4g} (bias {pct(inferred.mean() - true.mean()):+.1f}% of the range; "
               f"pooled minimum - true mean {pct(vertex - true.mean()):+.1f}%), inferred std {inferred.std():.4g} against {true.std():.4g}")
 

@@ -7,7 +7,7 @@ import torch
 
 from vgpl.eval.metrics import midpoint_error_pct
 from vgpl.eval.paired import paired_bootstrap
-from vgpl.eval.tables import MIDPOINT_ROW, PER_VIDEO, csv_text, paired_rows, paired_steps, param_rows, report_markdown, table1_rows
+from vgpl.eval.tables import MIDPOINT_ROW, PER_VIDEO, csv_text, paired_rows, paired_steps, param_rows, read_params_csv, report_markdown, table1_rows
 
 
 def _record(env: str, ablation: str, mae: float, midpoint: float | None = None) -> dict:
@@ -50,6 +50,36 @@ def test_params_csv_carries_extra_per_video_columns_after_the_parameters():
     header, rows = param_rows(["stiffness"], torch.tensor([[0.3], [0.8]]), torch.tensor([[0.35], [0.7]]), None,
                               {"future_mse_x1e4@20": torch.tensor([12.5, 1.0e4])})
     assert csv_text(header, rows) == "rollout_id,true_stiffness,inferred_stiffness,future_mse_x1e4@20\r\n0,0.3,0.35,12.5\r\n1,0.8,0.7,10000\r\n"
+
+
+def test_params_csv_reads_back_what_param_rows_wrote_and_selects_rows_by_rollout_id(tmp_path):
+    path = tmp_path / "params.csv"
+    path.write_text(csv_text(*param_rows(["a", "b"], torch.tensor([[1.0, 2.0], [3.0, 4.0], [5.0, 6.0]]),
+                                         torch.tensor([[1.5, 2.5], [3.5, 4.5], [5.5, 6.5]]), torch.tensor([907, 903, 905]),
+                                         {"future_mse_x1e4@20": torch.tensor([7.0, 8.0, 9.0])})))
+    table = read_params_csv(path, ["b", "a"], ("future_mse_x1e4@20",))
+    assert table.rollout_ids == [907, 903, 905]
+    assert table.truth.tolist() == [[2.0, 1.0], [4.0, 3.0], [6.0, 5.0]]  # in the order of the names asked for
+    assert table.inferred.tolist() == [[2.5, 1.5], [4.5, 3.5], [6.5, 5.5]]
+    chosen = table.select([905, 907])
+    assert chosen.rollout_ids == [905, 907] and chosen.inferred[:, 1].tolist() == [5.5, 1.5]
+    assert chosen.columns["future_mse_x1e4@20"].tolist() == [9.0, 7.0]
+    with pytest.raises(ValueError, match=r"params\.csv: no row for rollouts \[904\]"):
+        table.select([903, 904])
+
+
+def test_params_csv_of_another_env_or_a_missing_file_is_one_error_naming_the_file(tmp_path):
+    path = tmp_path / "params.csv"
+    path.write_text(csv_text(*param_rows(["gravity"], torch.zeros(2, 1), torch.ones(2, 1))))
+    with pytest.raises(ValueError, match=r"params\.csv: columns \['true_stiffness', 'inferred_stiffness'\] missing"):
+        read_params_csv(path, ["stiffness"])
+    with pytest.raises(ValueError, match=r"params\.csv: columns \['future_mse_x1e4@20'\] missing"):
+        read_params_csv(path, ["gravity"], ("future_mse_x1e4@20",))
+    with pytest.raises(ValueError, match=r"nothing/params\.csv: no such file"):
+        read_params_csv(tmp_path / "nothing/params.csv", ["gravity"])
+    path.write_text("rollout_id,true_gravity,inferred_gravity\n")
+    with pytest.raises(ValueError, match=r"params\.csv: no rows"):
+        read_params_csv(path, ["gravity"])
 
 
 def _with_videos(env: str, ablation: str, errors: list[float], first_id: int = 900) -> dict:

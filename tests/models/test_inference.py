@@ -381,8 +381,7 @@ def test_blend_then_bernoulli_switches_at_its_step_and_the_checkpoint_keeps_it(t
     trainer = L.Trainer(max_steps=5, logger=False, enable_progress_bar=False, enable_model_summary=False, enable_checkpointing=False,
                         default_root_dir=tmp_path, callbacks=[seen])
     trainer.fit(inf, DataLoader([{k: v[0] for k, v in batch.items()} for _ in range(5)], batch_size=1))
-    assert [(s, had, e) for s, had, e in seen.steps] == [(0, False, "blend"), (1, False, "blend"), (2, False, "blend"),
-                                                        (3, True, "bernoulli"), (4, True, "bernoulli")]
+    assert seen.steps == [(0, False, "blend"), (1, False, "blend"), (2, False, "blend"), (3, True, "bernoulli"), (4, True, "bernoulli")]
     trainer.save_checkpoint(tmp_path / "switched.ckpt")
     loaded = InferenceModule.load_from_checkpoint(tmp_path / "switched.ckpt", map_location="cpu")
     assert loaded.estimator == "bernoulli" and loaded.hparams.rigidness_estimator == "blend"

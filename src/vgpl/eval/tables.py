@@ -6,6 +6,7 @@ from __future__ import annotations
 import csv
 import io
 import re
+from typing import NamedTuple
 
 import torch
 
@@ -138,6 +139,45 @@ def param_rows(names: list[str], truth, inferred, rollout_ids=None, columns: dic
     rows = [[str(i)] + [f"{float(v):.6g}" for p in range(len(names)) for v in (t[p], x[p])] + [f"{float(c[r]):.6g}" for c in columns.values()]
             for r, (i, t, x) in enumerate(zip(ids, truth, inferred))]
     return header, rows
+
+
+class ParamsCsv(NamedTuple):
+    """An evaluation's params.csv read back from ``path``: rollout_ids [R]; truth, inferred [R, P]
+    physical, in the order of the names asked for; columns: name -> [R] of each extra column asked for."""
+
+    path: str
+    rollout_ids: list[int]
+    truth: torch.Tensor
+    inferred: torch.Tensor
+    columns: dict[str, torch.Tensor]
+
+    def select(self, rollout_ids) -> ParamsCsv:
+        """The rows of ``rollout_ids``, in their order; ValueError names the ids with no row."""
+        row = {i: r for r, i in enumerate(self.rollout_ids)}
+        missing = [int(i) for i in rollout_ids if int(i) not in row]
+        if missing:
+            raise ValueError(f"{self.path}: no row for rollouts {missing[:5]}{'...' if len(missing) > 5 else ''}: "
+                             "expected a params.csv of task=evaluate on the same test split")
+        keep = [row[int(i)] for i in rollout_ids]
+        return ParamsCsv(self.path, [int(i) for i in rollout_ids], self.truth[keep], self.inferred[keep], {c: v[keep] for c, v in self.columns.items()})
+
+
+def read_params_csv(path, names: list[str], columns: tuple[str, ...] = ()) -> ParamsCsv:
+    """The inverse of ``param_rows``: an evaluation's params.csv with the true and inferred value of
+    each of ``names`` and the extra ``columns``. One ValueError names the file and what is missing."""
+    try:
+        with open(path, newline="") as f:
+            rows = list(csv.DictReader(f))
+    except FileNotFoundError:
+        raise ValueError(f"{path}: no such file (the params.csv of a task=evaluate output folder was expected)") from None
+    if not rows:
+        raise ValueError(f"{path}: no rows (one per test video was expected)")
+    needed = ["rollout_id"] + [f"{kind}_{n}" for n in names for kind in ("true", "inferred")] + list(columns)
+    missing = [k for k in needed if k not in rows[0]]
+    if missing:
+        raise ValueError(f"{path}: columns {missing} missing (found {list(rows[0])}): is it another env's params.csv?")
+    truth, inferred = (torch.tensor([[float(r[f"{kind}_{n}"]) for n in names] for r in rows]) for kind in ("true", "inferred"))
+    return ParamsCsv(str(path), [int(r["rollout_id"]) for r in rows], truth, inferred, {c: torch.tensor([float(r[c]) for r in rows]) for c in columns})
 
 
 def runs_rows(pooled: list[dict]) -> tuple[list[str], list[list[str]]]:
