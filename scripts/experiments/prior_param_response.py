@@ -8,7 +8,7 @@ the prior's residual at the truth, and the oracle's error linearised about the t
 <r, r>) with the prior's response and with the engine's: what the prior's residual would cost if
 it responded as the engine does. ``--json`` writes the numbers.
 
-    python scripts/experiments/prior_param_response.py CKPT [CKPT ...] [--root data/standard] [--videos 100] [--json out.json]
+    python scripts/experiments/prior_param_response.py CKPT [CKPT ...] [--root data/standard] [--videos 100] [--start F] [--json out.json]
 """
 
 from __future__ import annotations
@@ -31,6 +31,7 @@ def main() -> None:
     parser.add_argument("checkpoints", nargs="+")
     parser.add_argument("--root", default="data/standard", help="dataset root with <env>/test shards (true trajectories and velocities)")
     parser.add_argument("--videos", type=int, default=100, help="first test videos")
+    parser.add_argument("--start", type=int, help="first frame of the window (default: the checkpoint's env.start_frame)")
     parser.add_argument("--frames", type=int, default=15, help="window length from the env's start_frame (the oracle's: observed 10 + horizon 5)")
     parser.add_argument("--delta", type=float, default=0.1, help="half-step of the central difference, normalised units (range [-1, 1])")
     parser.add_argument("--json", help="write every checkpoint's numbers here")
@@ -42,7 +43,7 @@ def main() -> None:
         model, cfg = load_dynamics(path)
         model.eval()
         scene = scene_of(cfg)
-        start = int(cfg.env.get("start_frame", 0))
+        start = int(cfg.env.get("start_frame", 0)) if args.start is None else args.start
         test = load_split(args.root, scene.name, "test", max_rollouts=args.videos, velocities=True)
         n = test.positions.shape[0]
         # every movable particle (what the oracle's L1 sums), then each object alone
