@@ -49,7 +49,7 @@ CONF = Path(__file__).resolve().parents[2] / "conf"
 def offset_params(truth: torch.Tensor, low: torch.Tensor, high: torch.Tensor, pct: float, generator: torch.Generator) -> torch.Tensor:
     """[R, P] the truth moved by ``pct`` % of the range, up or down at random, clipped to [low, high]."""
     sign = torch.randint(0, 2, truth.shape, generator=generator) * 2 - 1
-    return torch.minimum(torch.maximum(truth + sign * pct / 100 * (high - low), low), high)
+    return (truth + sign * pct / 100 * (high - low)).clamp(low, high)
 
 
 def main() -> None:
