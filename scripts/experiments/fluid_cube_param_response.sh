@@ -6,6 +6,7 @@
 # the viscosity response (vgpl.eval.param_response; the fluid restarts exactly from a recorded frame,
 # tests/eval/test_param_response.py) of the preset's 4-frame prior and of a 2-frame one trained on
 # the same data for the same minutes, then their viscosity oracles.
+# Run in session 62, both priors side by side on one core each (docs/experiments.md, session 62).
 # Usage: bash scripts/experiments/fluid_cube_param_response.sh   # about 2 h 50 min on the 2-core CPU
 #        ONLY_H4=1 bash ...                                       # stop after the 4-frame prior's response (about 1 h 15 min)
 set -euo pipefail
