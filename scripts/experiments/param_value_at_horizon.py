@@ -68,6 +68,8 @@ def main() -> None:
     parser.add_argument("--seed", type=int, default=0, help="of the uniform draws and the offsets' signs")
     parser.add_argument("--json", help="write the numbers here")
     args = parser.parse_args()
+    if args.prior and args.overrides:
+        parser.error("--overrides applies with --env only: with --prior the scene is the checkpoint's config")
     torch.set_grad_enabled(False)
     began = time.time()
     if args.prior:
