@@ -126,8 +126,11 @@ def param_response(model, scene: Scene, rollouts: Rollouts, start: int, frames: 
     shift[:, param] = delta
     scale = model.disp_std
 
+    def engine_at(physical: torch.Tensor) -> torch.Tensor:
+        return engine_from_frame(scene, rollouts, start + h - 1, n_steps, physical)
+
     def engine(p: torch.Tensor) -> torch.Tensor:
-        return engine_from_frame(scene, rollouts, start + h - 1, n_steps, model.to_physical(p)) / scale
+        return engine_at(model.to_physical(p)) / scale
 
     def prior(p: torch.Tensor) -> torch.Tensor:
         return rollout(model, positions, grouping, rigidness, model.to_physical(p), planes, kinematic, n_steps) / scale
@@ -137,7 +140,7 @@ def param_response(model, scene: Scene, rollouts: Rollouts, start: int, frames: 
         # at the recorded parameters themselves: their float32 round trip through normalise_params /
         # to_physical moves FluidCube's viscosity by ~1e-6 relative, which its fluid turns into
         # centimetres within 14 frames (chaos, not a restart error; docs/experiments.md, session 63)
-        restart_error = float((engine_from_frame(scene, rollouts, start + h - 1, n_steps, params) - positions[:, h:]).abs().max())
+        restart_error = float((engine_at(params) - positions[:, h:]).abs().max())
         return ParamResponse(
             engine=(engine(centre + shift) - engine(centre - shift)) / (2 * delta),
             prior=(prior(centre + shift) - prior(centre - shift)) / (2 * delta),
