@@ -3,9 +3,12 @@
 The visual prior trains on every training video, the module's 300 among them, so its proposals of those
 can be cleaner than of the test videos; a module that learns P from the clean ones then reads the test
 ones' through an offset (FluidCube, session 59: 0.587 against 1.738 x 1e4, viscosity bias -13 against -24).
-Prints the position MSE x 1e4 of frames [FIRST, LAST) per split, against the recorded particles.
+Prints the position MSE x 1e4 of frames [FIRST, LAST) per split, against the recorded particles, and
+with ``--block B`` per block of B consecutive training videos too: a visual prior trained with
+``model.visual.first_rollout=B`` holds the first block out and saw the second
+(scripts/experiments/gpu_held_out_visual.sh).
 
-    python scripts/experiments/proposal_error_by_split.py DATA_ROOT ENV [--frames 20 30]
+    python scripts/experiments/proposal_error_by_split.py DATA_ROOT ENV [--frames 20 30] [--block 300]
         DATA_ROOT holds <env>/{train,test}/shard_*.h5 and <env>/proposals/{train,test}.h5
 """
 
@@ -19,14 +22,23 @@ from vgpl.data.grounding import split_with_proposals
 from vgpl.eval.metrics import position_mse_x1e4
 
 
-def error_by_split(data_root: str, env: str, first: int, last: int) -> dict:
-    """{split: {videos, mean, median}}: position MSE x 1e4 over frames [first, last) of each video."""
+def summary(per_video: torch.Tensor) -> dict:
+    return {"videos": len(per_video), "mean": float(per_video.mean()), "median": float(per_video.median())}
+
+
+def error_by_split(data_root: str, env: str, first: int, last: int, block: int | None = None) -> dict:
+    """{split: {videos, mean, median}}: position MSE x 1e4 over frames [first, last) of each video;
+    with ``block``, also {"train videos a-b": ...} for each block of ``block`` consecutive training videos."""
     out = {}
     for split in ("train", "test"):
         truth, prop = split_with_proposals(data_root, env, split)  # refuses proposals of other rollouts
         per_video = torch.stack([torch.as_tensor(position_mse_x1e4(p[first:last], t[first:last]))
                                  for p, t in zip(prop.positions, truth.positions)])
-        out[split] = {"videos": len(per_video), "mean": float(per_video.mean()), "median": float(per_video.median())}
+        out[split] = summary(per_video)
+        if split == "train" and block:
+            ids = truth.rollout_ids
+            for k in range(0, len(ids), block):
+                out[f"train videos {int(ids[k])}-{int(ids[min(k + block, len(ids)) - 1])}"] = summary(per_video[k:k + block])
     return out
 
 
@@ -34,6 +46,9 @@ if __name__ == "__main__":
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("data_root"), parser.add_argument("env")
     parser.add_argument("--frames", type=int, nargs=2, default=(20, 30), metavar=("FIRST", "LAST"))
+    parser.add_argument("--block", type=int, default=None, help="also the training videos in blocks of this many")
     args = parser.parse_args()
-    for split, e in error_by_split(args.data_root, args.env, *args.frames).items():
+    if args.block is not None and args.block < 1:
+        parser.error(f"--block {args.block}: expected a number of videos >= 1")
+    for split, e in error_by_split(args.data_root, args.env, *args.frames, block=args.block).items():
         print(f"{split}: {e['videos']} videos, frames {args.frames[0]}-{args.frames[1] - 1}: MSE x 1e4 mean {e['mean']:.3f}, median {e['median']:.3f}")

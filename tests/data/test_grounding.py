@@ -103,10 +103,11 @@ def test_the_standard_preset_validates_where_evaluate_observes(env, start):
 
 def test_proposals_of_other_rollouts_are_refused_by_file_name(tmp_path):
     """split_with_proposals (the DataModule's and the diagnostics' loader) pairs a split with its
-    proposals only when their rollout_ids agree."""
+    proposals only when their rollout_ids agree: the first R rollouts, or R consecutive later ones."""
     from vgpl.data.grounding import proposals_path, split_with_proposals
     from vgpl.data.proposals import write_proposals
     from vgpl.data.shard import write_shard
+    from vgpl.data.trajectories import load_split
     from vgpl.tasks.generate import plan_shards, scene_attrs, simulate_shard
 
     scene = make_scene("mass_rope", n_steps=12)
@@ -119,9 +120,14 @@ def test_proposals_of_other_rollouts_are_refused_by_file_name(tmp_path):
     write_proposals(path, Proposals(torch.rand(3, 12, 95, 3), torch.zeros(3, 12, 95, 2), ids, {}))
     rollouts, proposals = split_with_proposals(tmp_path, "mass_rope", "train")
     assert rollouts.positions.shape[0] == 3 and torch.equal(rollouts.rollout_ids, proposals.rollout_ids)
-    write_proposals(path, Proposals(torch.rand(3, 12, 95, 3), torch.zeros(3, 12, 95, 2), ids.flip(0), {}))
-    with pytest.raises(DatasetError, match=r"mass_rope/proposals/train.h5: 'rollout_ids' do not match the dataset's; re-export"):
-        split_with_proposals(tmp_path, "mass_rope", "train")
+    write_proposals(path, Proposals(torch.rand(3, 12, 95, 3), torch.zeros(3, 12, 95, 2), ids + 1, {}))  # a later block: rollouts 1-3
+    rollouts, proposals = split_with_proposals(tmp_path, "mass_rope", "train")
+    assert rollouts.rollout_ids.tolist() == [1, 2, 3] and torch.equal(rollouts.rollout_ids, proposals.rollout_ids)
+    assert torch.equal(rollouts.positions, load_split(tmp_path, "mass_rope", "train").positions[1:4])
+    for wrong in (ids.flip(0), ids + 2):  # out of order; past the split's 4 rollouts
+        write_proposals(path, Proposals(torch.rand(3, 12, 95, 3), torch.zeros(3, 12, 95, 2), wrong, {}))
+        with pytest.raises(DatasetError, match=r"mass_rope/proposals/train.h5: 'rollout_ids' do not match the dataset's; re-export"):
+            split_with_proposals(tmp_path, "mass_rope", "train")
 
 
 def test_exported_proposals_are_taken_by_rollout_id_and_refused_by_file_name(tmp_path):

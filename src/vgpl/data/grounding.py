@@ -21,13 +21,19 @@ def proposals_path(root: str | Path, env: str, split: str) -> Path:
 
 
 def split_with_proposals(root: str | Path, env: str, split: str, window_pool: str = "last") -> tuple[Rollouts, Proposals]:
-    """The split's first R rollouts and their exported proposals (which cover the first R), refused
-    by file name when the proposals' rollout_ids are not those rollouts', or when ``window_pool``
-    needs the windows' slots and the visual prior's file has none."""
+    """The R rollouts of the split that its exported proposals cover, and those proposals: the first R,
+    or any R consecutive ones (say videos 300-599, whose proposals a visual prior trained on videos
+    300-899 makes as cleanly as it does its own training videos' while it holds 0-299 out), refused by
+    file name when the proposals' rollout_ids are not those rollouts', or when ``window_pool`` needs
+    the windows' slots and the visual prior's file has none."""
     path = proposals_path(root, env, split)
     proposals = read_proposals(path, window_pool)
-    rollouts = load_split(root, env, split, max_rollouts=len(proposals.rollout_ids))
-    if not torch.equal(rollouts.rollout_ids, proposals.rollout_ids):
+    ids = proposals.rollout_ids
+    rollouts = load_split(root, env, split, max_rollouts=len(ids))
+    offset = int(ids[0] - rollouts.rollout_ids[0]) if len(ids) else 0
+    if offset > 0 and not torch.equal(rollouts.rollout_ids, ids):  # a later block of the split's videos
+        rollouts = load_split(root, env, split, max_rollouts=len(ids), first_rollout=offset)
+    if not torch.equal(rollouts.rollout_ids, ids):
         raise DatasetError(f"{path}: 'rollout_ids' do not match the dataset's; re-export with task=export_proposals")
     return rollouts, proposals
 
