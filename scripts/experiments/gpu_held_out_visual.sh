@@ -22,7 +22,7 @@
 # Needs .carry/site (hydra, omegaconf, antlr4: pure Python, copied from this machine); carry [".carry"].
 # Usage (device): ENV=rigid_fall bash scripts/experiments/gpu_held_out_visual.sh   [env: DEADLINE=480 PRIOR=0|1 GEN_N=1000 VAL=3000 V_EXTRA=]
 # On a CPU, the preset's 15-minute visual stage on existing data (DATA holds <env>/{train,test}, linked, not generated):
-#   ENV=rigid_fall DATA=/tmp/s64/data/standard DEADLINE=1000 THREADS=2 STREAM=true PRIOR=0 EXPORT_S=900 OUT=/tmp/held_out bash scripts/experiments/gpu_held_out_visual.sh
+#   ENV=rigid_fall DATA=/tmp/s64/data/standard DEADLINE=990 THREADS=2 STREAM=true PRIOR=0 EXPORT_S=900 OUT=/tmp/held_out bash scripts/experiments/gpu_held_out_visual.sh
 # Locally (smoke): ENV=mass_rope GEN_N=40 HOLD=10 DEADLINE=150 VAL=50 THREADS=2 OUT=/tmp/gpu_out bash scripts/experiments/gpu_held_out_visual.sh
 set -uo pipefail
 ENV=${ENV:?ENV=rigid_fall or mass_rope}; DEADLINE=${DEADLINE:-480}; GEN_N=${GEN_N:-1000}; VAL=${VAL:-3000}; V_EXTRA=${V_EXTRA:-}
