@@ -29,10 +29,9 @@ def split_with_proposals(root: str | Path, env: str, split: str, window_pool: st
     path = proposals_path(root, env, split)
     proposals = read_proposals(path, window_pool)
     ids = proposals.rollout_ids
-    rollouts = load_split(root, env, split, max_rollouts=len(ids))
-    offset = int(ids[0] - rollouts.rollout_ids[0]) if len(ids) else 0
-    if offset > 0 and not torch.equal(rollouts.rollout_ids, ids):  # a later block of the split's videos
-        rollouts = load_split(root, env, split, max_rollouts=len(ids), first_rollout=offset)
+    split_first = int(load_split(root, env, split, max_rollouts=1).rollout_ids[0])  # a split's ids are consecutive
+    offset = max(int(ids[0]) - split_first, 0) if len(ids) else 0
+    rollouts = load_split(root, env, split, max_rollouts=len(ids), first_rollout=offset)
     if not torch.equal(rollouts.rollout_ids, ids):
         raise DatasetError(f"{path}: 'rollout_ids' do not match the dataset's; re-export with task=export_proposals")
     return rollouts, proposals
