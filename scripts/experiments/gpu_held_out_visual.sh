@@ -59,7 +59,8 @@ stamp "visual rc=$?"
 timeout ${EXPORT_S:-150} "${RUN[@]}" task=export_proposals threads=$THREADS data.progress=false paths.ckpt_dir=checkpoints/gpu_visual/$ENV \
   model.inference.max_rollouts=$(( 2 * HOLD )) hydra.run.dir=outputs/gpu_export > outputs/gpu_logs/export.txt 2>&1
 stamp "export rc=$?"
-"$PY" scripts/experiments/proposal_error_by_split.py data/gpu $ENV --block $HOLD $([ "$ENV" = mass_rope ] && echo "--frames 20 30" || echo "--frames 0 10") \
+START=$("$PY" -c "from omegaconf import OmegaConf; print(OmegaConf.load('conf/env/$ENV.yaml').start_frame)")  # the observed frames: START..START+9
+"$PY" scripts/experiments/proposal_error_by_split.py data/gpu $ENV --block $HOLD --frames $START $(( START + 10 )) \
   > outputs/gpu_logs/proposal_error.txt 2>&1
 for s in train test; do "$PY" scripts/experiments/proposals_parts.py pack data/gpu/$ENV/proposals/$s.h5 "$OUT" --rollouts $HOLD; done
 wait
