@@ -99,3 +99,29 @@ def test_a_fit_the_clock_stops_first_ends_annealed_and_resumes_on_the_same_sched
     assert "visual: stopped at step 3 of 100, before its learning-rate anneal began" in caplog.text
     resumed = fit(100, tmp_path / "resumed", anneal_steps=50, clock_s=6.0, n_videos=6, ckpt_path=tmp_path / "cut" / "last.ckpt")
     assert resumed == pytest.approx(whole[3:])
+
+
+def test_the_encoder_runs_channels_last_and_computes_what_the_nchw_layout_does():
+    """The encoder's weights and input are stored channels-last (the fast convolutions' layout,
+    benchmarks/visual.py); channel f * 3 + c is frame f's colour c as before, the outputs match
+    the same weights run in NCHW, and a state dict saved in NCHW (checkpoints before session 65)
+    loads into it and gives the same outputs."""
+    torch.manual_seed(0)
+    frames = torch.randint(0, 255, (2, 4, 24, 32, 3), dtype=torch.uint8)
+    model = VisualPrior(n_particles=5, n_instances=2, channels=[8, 16], pooled=[2, 2], hidden=16).eval()
+    x = VisualPrior.to_input(frames)
+    assert x.is_contiguous(memory_format=torch.channels_last)
+    assert model.encoder[0][0].weight.is_contiguous(memory_format=torch.channels_last)
+    assert torch.equal(x[1, 7], frames[1, 2, :, :, 1].float() / 127.5 - 1.0)  # channel 7 = frame 2, green
+
+    nchw = VisualPrior(n_particles=5, n_instances=2, channels=[8, 16], pooled=[2, 2], hidden=16).eval()
+    nchw.encoder.to(memory_format=torch.contiguous_format)
+    nchw.load_state_dict({k: v.contiguous() for k, v in model.state_dict().items()})
+    assert nchw.encoder[0][0].weight.is_contiguous()
+    with torch.no_grad():
+        expected = nchw.position_head(nchw.encoder(x.contiguous()))
+        assert torch.allclose(model.position_head(model.encoder(x)), expected, atol=1e-5)
+        loaded = VisualPrior(n_particles=5, n_instances=2, channels=[8, 16], pooled=[2, 2], hidden=16).eval()
+        loaded.load_state_dict(nchw.state_dict())
+        assert loaded.encoder[0][0].weight.is_contiguous(memory_format=torch.channels_last)
+        assert torch.allclose(loaded(frames)[0], model(frames)[0], atol=1e-6)
