@@ -6,9 +6,11 @@ ones' through an offset (FluidCube, session 59: 0.587 against 1.738 x 1e4, visco
 Prints the position MSE x 1e4 of frames [FIRST, LAST) per split, against the recorded particles, and
 with ``--block B`` per block of B consecutive training videos too: a visual prior trained with
 ``model.visual.first_rollout=B`` holds the first block out and saw the second
-(scripts/experiments/gpu_held_out_visual.sh).
+(scripts/experiments/gpu_held_out_visual.sh). With ``--against OTHER_ROOT``, also the paired
+difference (this - other) on the same videos with its 95% bootstrap interval: two visual priors'
+proposals of one dataset compared video by video.
 
-    python scripts/experiments/proposal_error_by_split.py DATA_ROOT ENV [--frames 20 30] [--block 300]
+    python scripts/experiments/proposal_error_by_split.py DATA_ROOT ENV [--frames 20 30] [--block 300] [--against OTHER_ROOT]
         DATA_ROOT holds <env>/{train,test}/shard_*.h5 and <env>/proposals/{train,test}.h5
 """
 
@@ -20,10 +22,31 @@ import torch
 
 from vgpl.data.grounding import split_with_proposals
 from vgpl.eval.metrics import position_mse_x1e4
+from vgpl.eval.paired import paired_bootstrap
 
 
 def summary(per_video: torch.Tensor) -> dict:
     return {"videos": len(per_video), "mean": float(per_video.mean()), "median": float(per_video.median())}
+
+
+def per_video_error(data_root: str, env: str, split: str, first: int, last: int) -> tuple[torch.Tensor, torch.Tensor]:
+    """(rollout ids [R], position MSE x 1e4 over frames [first, last) of each video [R])."""
+    truth, prop = split_with_proposals(data_root, env, split)  # refuses proposals of other rollouts
+    return torch.as_tensor(truth.rollout_ids), torch.stack([torch.as_tensor(position_mse_x1e4(p[first:last], t[first:last]))
+                                                            for p, t in zip(prop.positions, truth.positions)])
+
+
+def paired_by_split(data_root: str, other_root: str, env: str, first: int, last: int) -> dict:
+    """{split: paired_bootstrap(other, this)}: this root's proposal error minus the other's, video by video."""
+    out = {}
+    for split in ("train", "test"):
+        ids, this = per_video_error(data_root, env, split, first, last)
+        other_ids, other = per_video_error(other_root, env, split, first, last)
+        if not torch.equal(ids, other_ids):
+            raise ValueError(f"{other_root}/{env}/proposals/{split}.h5 holds other videos than {data_root}'s "
+                             f"({len(other_ids)} against {len(ids)}); export both for the same rollouts")
+        out[split] = paired_bootstrap(other, this)
+    return out
 
 
 def error_by_split(data_root: str, env: str, first: int, last: int, block: int | None = None) -> dict:
@@ -31,12 +54,9 @@ def error_by_split(data_root: str, env: str, first: int, last: int, block: int |
     with ``block``, also {"train videos a-b": ...} for each block of ``block`` consecutive training videos."""
     out = {}
     for split in ("train", "test"):
-        truth, prop = split_with_proposals(data_root, env, split)  # refuses proposals of other rollouts
-        per_video = torch.stack([torch.as_tensor(position_mse_x1e4(p[first:last], t[first:last]))
-                                 for p, t in zip(prop.positions, truth.positions)])
+        ids, per_video = per_video_error(data_root, env, split, first, last)
         out[split] = summary(per_video)
         if split == "train" and block:
-            ids = truth.rollout_ids
             for k in range(0, len(ids), block):
                 out[f"train videos {int(ids[k])}-{int(ids[min(k + block, len(ids)) - 1])}"] = summary(per_video[k:k + block])
     return out
@@ -47,8 +67,13 @@ if __name__ == "__main__":
     parser.add_argument("data_root"), parser.add_argument("env")
     parser.add_argument("--frames", type=int, nargs=2, default=(20, 30), metavar=("FIRST", "LAST"))
     parser.add_argument("--block", type=int, default=None, help="also the training videos in blocks of this many")
+    parser.add_argument("--against", default=None, metavar="OTHER_ROOT", help="also this root's proposals of the same videos, paired")
     args = parser.parse_args()
     if args.block is not None and args.block < 1:
         parser.error(f"--block {args.block}: expected a number of videos >= 1")
     for split, e in error_by_split(args.data_root, args.env, *args.frames, block=args.block).items():
         print(f"{split}: {e['videos']} videos, frames {args.frames[0]}-{args.frames[1] - 1}: MSE x 1e4 mean {e['mean']:.3f}, median {e['median']:.3f}")
+    if args.against:
+        for split, d in paired_by_split(args.data_root, args.against, args.env, *args.frames).items():
+            print(f"{split}: this - {args.against}: {d['mean_diff']:+.3f} [{d['low']:+.3f}, {d['high']:+.3f}] (95%), "
+                  f"this lower on {1 - d['reference_lower_share']:.0%} of {d['videos']} videos")
