@@ -29,32 +29,34 @@ def summary(per_video: torch.Tensor) -> dict:
     return {"videos": len(per_video), "mean": float(per_video.mean()), "median": float(per_video.median())}
 
 
-def per_video_error(data_root: str, env: str, split: str, first: int, last: int) -> tuple[torch.Tensor, torch.Tensor]:
-    """(rollout ids [R], position MSE x 1e4 over frames [first, last) of each video [R])."""
-    truth, prop = split_with_proposals(data_root, env, split)  # refuses proposals of other rollouts
-    return torch.as_tensor(truth.rollout_ids), torch.stack([torch.as_tensor(position_mse_x1e4(p[first:last], t[first:last]))
-                                                            for p, t in zip(prop.positions, truth.positions)])
-
-
-def paired_by_split(data_root: str, other_root: str, env: str, first: int, last: int) -> dict:
-    """{split: paired_bootstrap(other, this)}: this root's proposal error minus the other's, video by video."""
+def per_video_error(data_root: str, env: str, first: int, last: int) -> dict[str, tuple[torch.Tensor, torch.Tensor]]:
+    """{split: (rollout ids [R], position MSE x 1e4 over frames [first, last) of each video [R])}."""
     out = {}
     for split in ("train", "test"):
-        ids, this = per_video_error(data_root, env, split, first, last)
-        other_ids, other = per_video_error(other_root, env, split, first, last)
+        truth, prop = split_with_proposals(data_root, env, split)  # refuses proposals of other rollouts
+        out[split] = torch.as_tensor(truth.rollout_ids), torch.stack([torch.as_tensor(position_mse_x1e4(p[first:last], t[first:last]))
+                                                                      for p, t in zip(prop.positions, truth.positions)])
+    return out
+
+
+def paired_by_split(errors: dict, other_errors: dict, other_root: str, env: str) -> dict:
+    """{split: paired_bootstrap(other, this)}: this root's proposal error minus the other's (both from
+    ``per_video_error``), video by video; refuses the other root's proposals of other videos."""
+    out = {}
+    for split, (ids, this) in errors.items():
+        other_ids, other = other_errors[split]
         if not torch.equal(ids, other_ids):
-            raise ValueError(f"{other_root}/{env}/proposals/{split}.h5 holds other videos than {data_root}'s "
+            raise ValueError(f"{other_root}/{env}/proposals/{split}.h5 holds other videos than the first root's "
                              f"({len(other_ids)} against {len(ids)}); export both for the same rollouts")
         out[split] = paired_bootstrap(other, this)
     return out
 
 
-def error_by_split(data_root: str, env: str, first: int, last: int, block: int | None = None) -> dict:
-    """{split: {videos, mean, median}}: position MSE x 1e4 over frames [first, last) of each video;
-    with ``block``, also {"train videos a-b": ...} for each block of ``block`` consecutive training videos."""
+def error_by_split(errors: dict, block: int | None = None) -> dict:
+    """{split: {videos, mean, median}} of ``per_video_error``'s errors; with ``block``, also
+    {"train videos a-b": ...} for each block of ``block`` consecutive training videos."""
     out = {}
-    for split in ("train", "test"):
-        ids, per_video = per_video_error(data_root, env, split, first, last)
+    for split, (ids, per_video) in errors.items():
         out[split] = summary(per_video)
         if split == "train" and block:
             for k in range(0, len(ids), block):
@@ -71,9 +73,11 @@ if __name__ == "__main__":
     args = parser.parse_args()
     if args.block is not None and args.block < 1:
         parser.error(f"--block {args.block}: expected a number of videos >= 1")
-    for split, e in error_by_split(args.data_root, args.env, *args.frames, block=args.block).items():
+    errors = per_video_error(args.data_root, args.env, *args.frames)
+    for split, e in error_by_split(errors, block=args.block).items():
         print(f"{split}: {e['videos']} videos, frames {args.frames[0]}-{args.frames[1] - 1}: MSE x 1e4 mean {e['mean']:.3f}, median {e['median']:.3f}")
     if args.against:
-        for split, d in paired_by_split(args.data_root, args.against, args.env, *args.frames).items():
+        other_errors = per_video_error(args.against, args.env, *args.frames)
+        for split, d in paired_by_split(errors, other_errors, args.against, args.env).items():
             print(f"{split}: this - {args.against}: {d['mean_diff']:+.3f} [{d['low']:+.3f}, {d['high']:+.3f}] (95%), "
                   f"this lower on {1 - d['reference_lower_share']:.0%} of {d['videos']} videos")
