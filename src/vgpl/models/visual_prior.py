@@ -48,8 +48,8 @@ class VisualPrior(AnnealedLearningRate, L.LightningModule):
         for c in channels:
             blocks.append(conv_block(c_in, c))
             c_in = c
-        # channels-last: the layout oneDNN's and cuDNN's fast convolutions use (this CPU: 1.3x a step in fp32, 1.15x
-        # in bf16; benchmarks/visual.py). Module.to keeps it; a checkpoint saved either way loads into it.
+        # channels-last: the layout oneDNN's and cuDNN's fast convolutions use (this CPU: 1.42x a step in fp32, 1.23x
+        # in bf16; benchmarks/results_visual.jsonl). Module.to keeps it; a checkpoint saved either way loads into it.
         self.encoder = nn.Sequential(*blocks, nn.AdaptiveAvgPool2d(tuple(pooled)), nn.Flatten()).to(memory_format=torch.channels_last)
         features = c_in * pooled[0] * pooled[1]
         self.position_head = nn.Sequential(nn.Linear(features, hidden), nn.ReLU(inplace=True), nn.Linear(hidden, frames * n_particles * 3))
