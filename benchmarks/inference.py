@@ -4,15 +4,20 @@ proposals' radius graphs.
 
     python benchmarks/inference.py --data data/standard \
         --dynamics checkpoints/standard/fluid_cube/dynamics/last.ckpt   # JSON lines on stdout
+    python benchmarks/inference.py ... --preset --profile   # the standard preset's step, and where its time goes
 
 A step is what Lightning runs: the module's loss (encoders, heads, the rollout through the frozen
 DynamicsPrior), backward and Adam, under bf16 autocast as the standard preset trains. Median over
-``--repeat`` steps after two warm-ups.
+``--repeat`` steps after two warm-ups. ``--preset`` times the standard preset's module instead of
+VARIANTS (two encoders, both starts, the 5-frame tail); ``--profile`` adds the operators that took
+the most of those steps' CPU time (torch.profiler, self time) to its JSON line; its step_ms then
+includes the profiler's overhead, so time without it.
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import sys
 import time
@@ -32,16 +37,19 @@ from vgpl.models.inference import InferenceModule  # noqa: E402
 VARIANTS = [  # (batch, separate_param_net, max_neighbors)
     (4, True, 24),   # the first standard run (session 4)
     (2, True, 24),   # the paper's batch
-    (2, False, 24),  # the standard preset now
+    (2, False, 24),  # one shared encoder (the standard preset until session 24; --preset: what it is now)
     (2, False, 16),
 ]
 
 
 def measure(dm: GroundingDataModule, dynamics: DynamicsPrior, scene, radius: float, batch: int, separate: bool,
-            max_neighbors: int, repeat: int, trajectory_start: str = "refined", bf16: bool = True) -> dict:
+            max_neighbors: int, repeat: int, trajectory_start: str = "refined", bf16: bool = True, tail_horizon: int = 0,
+            profile: int = 0) -> dict:
+    """The median step; with ``profile`` > 0, also the ``profile`` operators of most self CPU time over the timed steps."""
     torch.manual_seed(0)
     model = InferenceModule(scene.param_low.tolist(), scene.param_high.tolist(), scene.n_particles, scene.n_instances, radius,
-                            separate_param_net=separate, max_neighbors=max_neighbors, trajectory_start=trajectory_start)
+                            separate_param_net=separate, max_neighbors=max_neighbors, trajectory_start=trajectory_start,
+                            tail_horizon=tail_horizon)
     model.set_stats(dynamics)
     model.attach_dynamics(dynamics)
     optimiser = torch.optim.Adam(model.parameters(), lr=1e-4)
@@ -60,11 +68,17 @@ def measure(dm: GroundingDataModule, dynamics: DynamicsPrior, scene, radius: flo
 
     step()
     step()
-    times = [step() for _ in range(repeat)]
+    with torch.profiler.profile(activities=[torch.profiler.ProfilerActivity.CPU]) if profile else contextlib.nullcontext() as prof:
+        times = [step() for _ in range(repeat)]
     ms = float(np.median(times)) * 1e3
-    return {"batch": batch, "separate_param_net": separate, "max_neighbors": max_neighbors, "trajectory_start": trajectory_start,
-            "precision": "bf16-mixed" if bf16 else "32-true",
-            "step_ms": round(ms, 1), "ms_per_window": round(ms / batch, 1)}
+    row = {"batch": batch, "separate_param_net": separate, "max_neighbors": max_neighbors, "trajectory_start": trajectory_start,
+           "tail_horizon": tail_horizon, "precision": "bf16-mixed" if bf16 else "32-true",
+           "step_ms": round(ms, 1), "ms_per_window": round(ms / batch, 1)}
+    if profile:
+        ops = sorted(prof.key_averages(), key=lambda e: e.self_cpu_time_total, reverse=True)
+        total = sum(e.self_cpu_time_total for e in ops)
+        row["self_cpu_share"] = {e.key: round(e.self_cpu_time_total / total, 3) for e in ops[:profile]}
+    return row
 
 
 def main() -> None:
@@ -78,6 +92,9 @@ def main() -> None:
     parser.add_argument("--window-span", type=int, default=20, help="model.inference.window_span the proposals were exported for (quick: 8)")
     parser.add_argument("--fp32", action="store_true", help="no bf16 autocast (what fast_precision picks on a CPU without bf16 units)")
     parser.add_argument("--variants", type=int, nargs="*", help="indices into VARIANTS to run (default: all)")
+    parser.add_argument("--preset", action="store_true",
+                        help="time the standard preset's module (batch 2, two encoders, both starts, tail_horizon 5) instead of VARIANTS")
+    parser.add_argument("--profile", type=int, default=0, metavar="K", help="also record the K operators of most self CPU time (0: off)")
     args = parser.parse_args()
     torch.set_num_threads(args.threads)
     dynamics, cfg = load_stage(args.dynamics, DynamicsPrior)
@@ -85,10 +102,13 @@ def main() -> None:
     dm = GroundingDataModule(args.data, scene, 10, 5, 2, cfg.env.get("start_frame", 0), 1, args.window_span)
     dm.setup()
     machine = describe()
-    for i, (batch, separate, neighbors) in enumerate(VARIANTS):
-        if args.variants and i not in args.variants:
-            continue
-        row = measure(dm, dynamics, scene, float(cfg.env.graph_radius), batch, separate, neighbors, args.repeat, args.trajectory_start, not args.fp32)
+    radius = float(cfg.env.graph_radius)
+    # --preset: conf/experiment/standard.yaml's model.inference (batch, two encoders, max_neighbors, both starts, tail 5)
+    runs = [(2, True, 24, "both", 5)] if args.preset else [
+        (batch, separate, neighbors, args.trajectory_start, 0) for i, (batch, separate, neighbors) in enumerate(VARIANTS)
+        if not args.variants or i in args.variants]
+    for batch, separate, neighbors, start, tail in runs:
+        row = measure(dm, dynamics, scene, radius, batch, separate, neighbors, args.repeat, start, not args.fp32, tail, args.profile)
         print(json.dumps({"benchmark": "inference_train_step", "env": scene.name, **row, "machine": machine}), flush=True)
 
 
