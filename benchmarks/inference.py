@@ -8,8 +8,9 @@ proposals' radius graphs.
 
 A step is what Lightning runs: the module's loss (encoders, heads, the rollout through the frozen
 DynamicsPrior), backward and Adam, under bf16 autocast as the standard preset trains. Median over
-``--repeat`` steps after two warm-ups. ``--preset`` times the standard preset's module instead of
-VARIANTS (two encoders, both starts, the 5-frame tail); ``--profile`` adds the operators that took
+``--repeat`` steps after two warm-ups. ``--preset`` times, instead of VARIANTS, the module as the
+prior's own run configured it (its saved config's ``model.inference``: for a standard prior the
+standard preset's two encoders, both starts and 5-frame tail, on its window span); ``--profile`` adds the operators that took
 the most of those steps' CPU time (torch.profiler, self time) to its JSON line; its step_ms then
 includes the profiler's overhead, so time without it.
 """
@@ -89,22 +90,23 @@ def main() -> None:
     parser.add_argument("--threads", type=int, default=2)
     parser.add_argument("--trajectory-start", default="refined", choices=["refined", "truth", "both"],
                         help="model.inference.net.trajectory_start ('both' rolls two starts: the standard runs since session 8)")
-    parser.add_argument("--window-span", type=int, default=20, help="model.inference.window_span the proposals were exported for (quick: 8)")
+    parser.add_argument("--window-span", type=int, default=20, help="model.inference.window_span the proposals were exported for (quick: 8; --preset reads the run's)")
     parser.add_argument("--fp32", action="store_true", help="no bf16 autocast (what fast_precision picks on a CPU without bf16 units)")
     parser.add_argument("--variants", type=int, nargs="*", help="indices into VARIANTS to run (default: all)")
     parser.add_argument("--preset", action="store_true",
-                        help="time the standard preset's module (batch 2, two encoders, both starts, tail_horizon 5) instead of VARIANTS")
+                        help="time the module as the prior's run configured it (its config's model.inference, window span included) instead of VARIANTS")
     parser.add_argument("--profile", type=int, default=0, metavar="K", help="also record the K operators of most self CPU time (0: off)")
     args = parser.parse_args()
     torch.set_num_threads(args.threads)
     dynamics, cfg = load_stage(args.dynamics, DynamicsPrior)
     scene = scene_of(cfg)
-    dm = GroundingDataModule(args.data, scene, 10, 5, 2, cfg.env.get("start_frame", 0), 1, args.window_span)
+    preset = cfg.model.inference
+    dm = GroundingDataModule(args.data, scene, 10, 5, 2, cfg.env.get("start_frame", 0), 1, preset.window_span if args.preset else args.window_span)
     dm.setup()
     machine = describe()
     radius = float(cfg.env.graph_radius)
-    # --preset: conf/experiment/standard.yaml's model.inference (batch, two encoders, max_neighbors, both starts, tail 5)
-    runs = [(2, True, 24, "both", 5)] if args.preset else [
+    runs = [(preset.batch_size, preset.net.separate_param_net, preset.net.max_neighbors, preset.net.trajectory_start,
+             preset.net.tail_horizon)] if args.preset else [
         (batch, separate, neighbors, args.trajectory_start, 0) for i, (batch, separate, neighbors) in enumerate(VARIANTS)
         if not args.variants or i in args.variants]
     for batch, separate, neighbors, start, tail in runs:
