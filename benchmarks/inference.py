@@ -12,7 +12,10 @@ DynamicsPrior), backward and Adam, under bf16 autocast as the standard preset tr
 prior's own run configured it (its saved config's ``model.inference``: for a standard prior the
 standard preset's two encoders, both starts and 5-frame tail, on its window span); ``--profile`` adds the operators that took
 the most of those steps' CPU time (torch.profiler, self time) to its JSON line; its step_ms then
-includes the profiler's overhead, so time without it.
+includes the profiler's overhead, so time without it. ``--compile`` wraps the message-passing parts
+of the prior and of both encoders in ``torch.compile(dynamic=True)`` (edge counts change every step):
+``propagator`` the propagation steps, ``per_edge`` also the edge and node encoders; the first step,
+which compiles, is one of the warm-ups.
 """
 
 from __future__ import annotations
@@ -41,11 +44,16 @@ VARIANTS = [  # (batch, separate_param_net, max_neighbors)
     (2, False, 24),  # one shared encoder (the standard preset until session 24; --preset: what it is now)
     (2, False, 16),
 ]
+COMPILED = {  # --compile: the submodules of the prior and of each encoder that torch.compile wraps
+    "none": (),
+    "propagator": ("propagator",),
+    "per_edge": ("propagator", "edge_encoder", "node_encoder"),
+}
 
 
 def measure(dm: GroundingDataModule, dynamics: DynamicsPrior, scene, radius: float, batch: int, separate: bool,
             max_neighbors: int, repeat: int, trajectory_start: str = "refined", bf16: bool = True, tail_horizon: int = 0,
-            profile: int = 0) -> dict:
+            profile: int = 0, compile_parts: str = "none") -> dict:
     """The median step; with ``profile`` > 0, also the ``profile`` operators of most self CPU time over the timed steps."""
     torch.manual_seed(0)
     model = InferenceModule(scene.param_low.tolist(), scene.param_high.tolist(), scene.n_particles, scene.n_instances, radius,
@@ -53,6 +61,10 @@ def measure(dm: GroundingDataModule, dynamics: DynamicsPrior, scene, radius: flo
                             tail_horizon=tail_horizon)
     model.set_stats(dynamics)
     model.attach_dynamics(dynamics)
+    owners = [m for m in (dynamics, model.encoder, model.param_encoder) if m is not None]
+    for owner in owners:
+        for name in COMPILED[compile_parts]:
+            getattr(owner, name).compile(dynamic=True)
     optimiser = torch.optim.Adam(model.parameters(), lr=1e-4)
     dm.batch_size = batch
     batches = iter(dm.train_dataloader())
@@ -73,7 +85,7 @@ def measure(dm: GroundingDataModule, dynamics: DynamicsPrior, scene, radius: flo
         times = [step() for _ in range(repeat)]
     ms = float(np.median(times)) * 1e3
     row = {"batch": batch, "separate_param_net": separate, "max_neighbors": max_neighbors, "trajectory_start": trajectory_start,
-           "tail_horizon": tail_horizon, "precision": "bf16-mixed" if bf16 else "32-true",
+           "tail_horizon": tail_horizon, "compile": compile_parts, "precision": "bf16-mixed" if bf16 else "32-true",
            "step_ms": round(ms, 1), "ms_per_window": round(ms / batch, 1)}
     if profile:
         ops = sorted(prof.key_averages(), key=lambda e: e.self_cpu_time_total, reverse=True)
@@ -95,6 +107,8 @@ def main() -> None:
     parser.add_argument("--variants", type=int, nargs="*", help="indices into VARIANTS to run (default: all)")
     parser.add_argument("--preset", action="store_true",
                         help="time the module as the prior's run configured it (its config's model.inference, window span included) instead of VARIANTS")
+    parser.add_argument("--compile", default="none", choices=list(COMPILED),
+                        help="torch.compile(dynamic=True) these parts of the prior and the encoders (none: eager)")
     parser.add_argument("--profile", type=int, default=0, metavar="K", help="also record the K operators of most self CPU time (0: off)")
     args = parser.parse_args()
     torch.set_num_threads(args.threads)
@@ -110,7 +124,7 @@ def main() -> None:
         (batch, separate, neighbors, args.trajectory_start, 0) for i, (batch, separate, neighbors) in enumerate(VARIANTS)
         if not args.variants or i in args.variants]
     for batch, separate, neighbors, start, tail in runs:
-        row = measure(dm, dynamics, scene, radius, batch, separate, neighbors, args.repeat, start, not args.fp32, tail, args.profile)
+        row = measure(dm, dynamics, scene, radius, batch, separate, neighbors, args.repeat, start, not args.fp32, tail, args.profile, args.compile)
         print(json.dumps({"benchmark": "inference_train_step", "env": scene.name, **row, "machine": machine}), flush=True)
 
 
