@@ -21,6 +21,7 @@ import argparse
 import torch
 
 from vgpl.data.grounding import split_with_proposals
+from vgpl.data.schema import DatasetError
 from vgpl.eval.metrics import position_mse_x1e4
 from vgpl.eval.paired import paired_bootstrap
 
@@ -73,11 +74,13 @@ if __name__ == "__main__":
     args = parser.parse_args()
     if args.block is not None and args.block < 1:
         parser.error(f"--block {args.block}: expected a number of videos >= 1")
-    errors = per_video_error(args.data_root, args.env, *args.frames)
+    try:  # a missing or mismatched proposals file: its one-line message, not a traceback
+        errors = per_video_error(args.data_root, args.env, *args.frames)
+        pairs = paired_by_split(errors, per_video_error(args.against, args.env, *args.frames), args.against, args.env) if args.against else {}
+    except (DatasetError, ValueError) as e:
+        raise SystemExit(str(e)) from None
     for split, e in error_by_split(errors, block=args.block).items():
         print(f"{split}: {e['videos']} videos, frames {args.frames[0]}-{args.frames[1] - 1}: MSE x 1e4 mean {e['mean']:.3f}, median {e['median']:.3f}")
-    if args.against:
-        other_errors = per_video_error(args.against, args.env, *args.frames)
-        for split, d in paired_by_split(errors, other_errors, args.against, args.env).items():
-            print(f"{split}: this - {args.against}: {d['mean_diff']:+.3f} [{d['low']:+.3f}, {d['high']:+.3f}] (95%), "
-                  f"this lower on {1 - d['reference_lower_share']:.0%} of {d['videos']} videos")
+    for split, d in pairs.items():
+        print(f"{split}: this - {args.against}: {d['mean_diff']:+.3f} [{d['low']:+.3f}, {d['high']:+.3f}] (95%), "
+              f"this lower on {1 - d['reference_lower_share']:.0%} of {d['videos']} videos")
