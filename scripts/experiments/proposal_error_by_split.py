@@ -47,8 +47,8 @@ def paired_by_split(errors: dict, other_errors: dict, other_root: str, env: str)
     for split, (ids, this) in errors.items():
         other_ids, other = other_errors[split]
         if not torch.equal(ids, other_ids):
-            raise ValueError(f"{other_root}/{env}/proposals/{split}.h5 holds other videos than the first root's "
-                             f"({len(other_ids)} against {len(ids)}); export both for the same rollouts")
+            raise DatasetError(f"{other_root}/{env}/proposals/{split}.h5 holds other videos than the first root's "
+                               f"({len(other_ids)} against {len(ids)}); export both for the same rollouts")
         out[split] = paired_bootstrap(other, this)
     return out
 
@@ -77,7 +77,7 @@ if __name__ == "__main__":
     try:  # a missing or mismatched proposals file: its one-line message, not a traceback
         errors = per_video_error(args.data_root, args.env, *args.frames)
         pairs = paired_by_split(errors, per_video_error(args.against, args.env, *args.frames), args.against, args.env) if args.against else {}
-    except (DatasetError, ValueError) as e:
+    except DatasetError as e:
         raise SystemExit(str(e)) from None
     for split, e in error_by_split(errors, block=args.block).items():
         print(f"{split}: {e['videos']} videos, frames {args.frames[0]}-{args.frames[1] - 1}: MSE x 1e4 mean {e['mean']:.3f}, median {e['median']:.3f}")
