@@ -1,0 +1,170 @@
+"""The commands and config keys the user-facing docs (README.md, docs/reproduce.md) give must still
+compose with Hydra, as the notebooks must still run: a renamed or removed option breaks a test here,
+not the first researcher who pastes the command.
+
+Every ``python run.py ...`` command (fenced blocks, backslash continuations joined, and inline code),
+each point of a ``-m`` sweep, is composed from conf/ and resolved, and its task must exist. Inline
+``key=value`` overrides and bare config keys in the prose are checked against the ``standard`` preset
+(``task.*`` keys against the task config that defines them). docs/experiments.md is a log of what was
+run at the time and is not checked. Placeholders a reader fills in (``<env>``, ``<preset>``, ...) take
+a real value; commands elided with ``...`` or shell variables are skipped, and counted.
+"""
+
+from __future__ import annotations
+
+import itertools
+import re
+import shlex
+from pathlib import Path
+
+import pytest
+from hydra import compose, initialize_config_dir
+from hydra.core.hydra_config import HydraConfig
+from hydra.core.override_parser.overrides_parser import OverridesParser
+from hydra.errors import HydraException
+from omegaconf import OmegaConf
+from omegaconf.errors import OmegaConfBaseException
+
+import vgpl  # noqa: F401  (registers the config resolvers)
+from vgpl.tasks import TASKS
+
+REPO = Path(__file__).resolve().parents[1]
+DOCS = ["README.md", "docs/reproduce.md"]
+BROKEN = (HydraException, OmegaConfBaseException, AssertionError)  # a bad override or group, an unresolvable value, an unknown task
+PLACEHOLDERS = {"<env>": "rigid_fall", "<preset>": "quick", "<partition>": "debug", "<date>/<time>": "2026-01-01/00-00-00"}
+COMMAND = re.compile(r"python run\.py[^#&;|\n]*")  # up to a comment, &&, ; or a pipe (a redirect: strip_redirect)
+
+
+def strip_redirect(command: str) -> str:
+    """``python run.py a=b > log 2>&1`` -> ``python run.py a=b`` (a ``>`` inside a word, as in <run>, stays)."""
+    return re.split(r"\s\d?>", command)[0]
+
+
+def documented_commands(text: str) -> list[str]:
+    """Every ``python run.py ...`` in fenced blocks (continuations joined) and inline code spans."""
+    blocks = re.findall(r"```[a-z]*\n(.*?)```", text, re.DOTALL)
+    found = [m for block in blocks for m in COMMAND.findall(block.replace("\\\n", " "))]
+    outside = re.sub(r"```.*?```", "", text, flags=re.DOTALL)
+    found += [m for span in re.findall(r"`([^`]*python run\.py[^`]*)`", outside) for m in COMMAND.findall(span)]
+    return [" ".join(strip_redirect(c).split()) for c in found]
+
+
+def fill_placeholders(command: str) -> str:
+    for placeholder, value in PLACEHOLDERS.items():
+        command = command.replace(placeholder, value)
+    return command
+
+
+def is_elided(command: str) -> bool:
+    return "..." in command or "$" in command or re.search(r"<[^>]*>", command) is not None
+
+
+def sweep_points(overrides: list[str]) -> list[list[str]]:
+    """A ``-m`` command's overrides -> one override list per job of its sweep."""
+    choices = []
+    for override in OverridesParser.create().parse_overrides(overrides):
+        if override.is_sweep_override():
+            choices.append([f"{override.get_key_element()}={value}" for value in override.sweep_string_iterator()])
+        else:
+            choices.append([override.input_line])
+    return [list(point) for point in itertools.product(*choices)]
+
+
+def compose_resolved(overrides: list[str]):
+    """The job's config as run.py composes it, every interpolation resolved (raises where one fails)."""
+    cfg = compose("config", overrides=overrides, return_hydra_config=True)
+    HydraConfig.instance().set_config(cfg)  # ${hydra:...} interpolations read it
+    OmegaConf.to_container(OmegaConf.masked_copy(cfg, [k for k in cfg if k != "hydra"]), resolve=True)
+    return cfg
+
+
+@pytest.fixture(scope="module")
+def docs_text() -> dict[str, str]:
+    return {name: (REPO / name).read_text() for name in DOCS}
+
+
+@pytest.fixture(scope="module")
+def hydra_conf():
+    with initialize_config_dir(config_dir=str(REPO / "conf"), version_base="1.3"):
+        yield
+
+
+def test_extraction_reads_fenced_continued_and_inline_commands() -> None:
+    text = ("Run `python run.py task=demo` first.\n```bash\nbash scripts/install.sh && python run.py   # main job\n"
+            "python run.py -m task=evaluate \\\n    env=rigid_fall,mass_rope > log.txt\n```\n")
+    assert documented_commands(text) == ["python run.py", "python run.py -m task=evaluate env=rigid_fall,mass_rope", "python run.py task=demo"]
+    assert sweep_points(["task=evaluate", "env=rigid_fall,mass_rope"]) == [["task=evaluate", "env=rigid_fall"], ["task=evaluate", "env=mass_rope"]]
+    assert is_elided("python run.py task=train_inference ... seed=1") and is_elided("python run.py $A")
+    assert documented_commands("`python run.py task=evaluate_dynamics ckpt_path=outputs/<run>/last.ckpt`") == [
+        "python run.py task=evaluate_dynamics ckpt_path=outputs/<run>/last.ckpt"]  # a placeholder's > is not a redirect
+    assert not is_elided(fill_placeholders("python run.py env=<env> experiment=<preset>"))
+
+
+def test_every_documented_command_composes(docs_text, hydra_conf) -> None:
+    checked, failures = 0, []
+    for name, text in docs_text.items():
+        for command in documented_commands(text):
+            command = fill_placeholders(command)
+            if is_elided(command):
+                continue
+            overrides = [w for w in shlex.split(command)[2:] if w != "-m"]
+            try:
+                points = sweep_points(overrides)
+            except BROKEN as error:
+                failures.append(f"{name}: {command}\n    {type(error).__name__}: {str(error).splitlines()[0]}")
+                continue
+            for point in points:
+                try:
+                    task = compose_resolved(point).task.name
+                    assert task in TASKS, f"task.name={task!r} is not a task ({sorted(TASKS)})"
+                    checked += 1
+                except BROKEN as error:  # every broken command is listed, not only the first
+                    failures.append(f"{name}: {command}\n    {' '.join(point)}\n    {type(error).__name__}: {str(error).splitlines()[0]}")
+    assert not failures, "documented commands that no longer compose:\n" + "\n".join(failures)
+    assert checked >= 50, f"only {checked} documented commands were composed: has the extraction broken?"
+
+
+def has_key(cfg, dotted: str) -> bool:
+    """Whether ``dotted`` names a key of cfg, whatever its value (null and ??? included)."""
+    parent, _, leaf = dotted.rpartition(".")
+    node = OmegaConf.select(cfg, parent, throw_on_missing=False, throw_on_resolution_failure=False) if parent else cfg
+    return OmegaConf.is_dict(node) and leaf in node.keys()  # noqa: SIM118 (`in node` is False for a ??? value)
+
+
+def task_defining(key: str) -> str | None:
+    """The task config (conf/task/<name>.yaml) that has ``task.<key>``, if any."""
+    for path in sorted((REPO / "conf" / "task").glob("*.yaml")):
+        if has_key(OmegaConf.load(path), key.removeprefix("task.")):
+            return path.stem
+    return None
+
+
+def context_for(key: str) -> list[str]:
+    """The overrides a prose key is meant with: the standard preset, and the task or launcher it belongs to."""
+    context = ["experiment=standard"]
+    if key.startswith("task.") and (task := task_defining(key)):
+        context.append(f"task={task}")
+    if key.startswith("hydra.launcher."):
+        context.append("hydra/launcher=slurm")
+    return context
+
+
+def test_every_documented_override_and_config_key_exists(docs_text, hydra_conf) -> None:
+    text = "\n".join(docs_text.values())
+    overrides = sorted(set(re.findall(r"`([a-z_]+(?:\.[a-z_0-9]+)+=[^`\s]+)`", text)))
+    keys = sorted(set(re.findall(r"`((?:model|data|trainer|eval|task|env|paths|ckpt)(?:\.[a-z_0-9]+)+)`", text)))
+    failures = []
+    for override in overrides:
+        key, value = override.split("=", 1)
+        if is_elided(value):
+            continue
+        try:
+            compose("config", overrides=[*context_for(key), override], return_hydra_config=True)
+        except BROKEN as error:
+            failures.append(f"`{override}`: {str(error).splitlines()[0]}")
+    for key in keys:
+        cfg = compose("config", overrides=context_for(key))
+        if not has_key(cfg, key):
+            failures.append(f"`{key}`: no such key in the standard preset's config{' or any task config' if key.startswith('task.') else ''}")
+    assert not failures, "documented config keys that no longer exist:\n" + "\n".join(failures)
+    assert len(overrides) >= 20 and len(keys) >= 20, (len(overrides), len(keys))
