@@ -7,6 +7,7 @@ Every training task writes ``<ckpt_dir>/<stage>/{last,best}.ckpt`` and the resol
 from __future__ import annotations
 
 import logging
+import pickle
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -31,7 +32,8 @@ def load_stage(path: str | Path, cls, env: str | None = None, n_particles: int |
         raise CheckpointError(f"{path}: no such checkpoint ({cls.__name__}); train it first, or pass its path")
     config_file = path.parent / "config.yaml"
     if not config_file.is_file():
-        raise CheckpointError(f"{config_file}: missing; the config saved beside a checkpoint rebuilds its environment")
+        raise CheckpointError(f"{config_file}: missing beside {path.name}; a vgpl training task saves its config there, "
+                              "which rebuilds the environment (is this a checkpoint written by one?)")
     cfg = OmegaConf.load(config_file)
     saved_cls = cfg.get("stage_class")  # written by vgpl.tasks.stage.fit
     if saved_cls is not None and saved_cls != f"{cls.__module__}.{cls.__name__}":
@@ -43,7 +45,11 @@ def load_stage(path: str | Path, cls, env: str | None = None, n_particles: int |
         have = scene_of(cfg).n_particles
         if have != n_particles:
             raise CheckpointError(f"{path}: trained for {have} particles, the data has {n_particles}")
-    model = cls.load_from_checkpoint(str(path), map_location="cpu")
+    try:
+        model = cls.load_from_checkpoint(str(path), map_location="cpu")
+    except (RuntimeError, EOFError, KeyError, pickle.UnpicklingError) as error:  # torch's own messages do not name the file
+        detail = f": {str(error).splitlines()[0]}" if isinstance(error, RuntimeError) else ""  # an unpickling error's advice is torch's, not ours
+        raise CheckpointError(f"{path}: not a readable {cls.__name__} checkpoint (truncated, or another file; {type(error).__name__}{detail})") from error
     return model.eval(), cfg
 
 

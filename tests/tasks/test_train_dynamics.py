@@ -217,6 +217,37 @@ def test_missing_checkpoint_is_named(tmp_path):
         evaluate_dynamics(config(tmp_path, "task=evaluate_dynamics", f"ckpt_path={tmp_path}/nope.ckpt"))
 
 
+@pytest.mark.parametrize("content", ["truncated", "another file"])
+def test_an_unreadable_checkpoint_is_named_with_what_it_is(trained, tmp_path, content):
+    """A truncated copy (a transfer cut short) or any other file beside a real config.yaml: one
+    CheckpointError naming the file, not torch's unpickling traceback, which names neither."""
+    _, result = trained
+    good = Path(result["checkpoint"])
+    bad = tmp_path / "dynamics" / "last.ckpt"
+    bad.parent.mkdir()
+    (bad.parent / "config.yaml").write_text((good.parent / "config.yaml").read_text())
+    bad.write_bytes(good.read_bytes()[: good.stat().st_size // 2] if content == "truncated" else b"not a checkpoint")
+    with pytest.raises(CheckpointError, match=f"{bad}: not a readable DynamicsPrior checkpoint"):
+        load_dynamics(bad)
+
+
+def test_a_file_without_the_config_saved_beside_it_is_named(trained, tmp_path):
+    _, result = trained
+    lone = tmp_path / "prior.ckpt"
+    lone.write_bytes(Path(result["checkpoint"]).read_bytes())
+    with pytest.raises(CheckpointError, match=f"{tmp_path / 'config.yaml'}: missing beside prior.ckpt"):
+        load_dynamics(lone)
+
+
+@pytest.mark.parametrize("size", ["abc", 0, 2.5])
+def test_a_bad_batch_size_is_refused_by_its_key_before_anything_is_written(trained, size):
+    tmp, _ = trained
+    before = sorted((tmp / "ckpt").rglob("*"))
+    with pytest.raises(ValueError, match=f"model.dynamics.batch_size={size!r}: expected a positive integer"):
+        train_dynamics(config(tmp, "task=train_dynamics", f"model.dynamics.batch_size={size}"))
+    assert sorted((tmp / "ckpt").rglob("*")) == before  # the trained stage folder is untouched
+
+
 def test_checkpoint_on_a_dataset_with_another_particle_count_is_named(trained, tmp_path):
     _, result = trained
     generate(config(tmp_path, "task=generate", "+env.scene.n_cubes=2"))  # 128 particles

@@ -50,6 +50,7 @@ def fit(cfg: DictConfig, stage: str, stage_cfg: DictConfig, model: L.LightningMo
     (vgpl.weight_averaging); ``stage_cfg.snapshot_every_n_steps`` (when set) keeps a
     ``step<N>.ckpt`` every N steps beside last.ckpt. Returns the trainer and the path of last.ckpt.
     """
+    check_batch_size(stage, stage_cfg)
     folder = stage_dir(cfg, stage)
     folder.mkdir(parents=True, exist_ok=True)
     saved = OmegaConf.to_container(cfg, resolve=True)
@@ -83,6 +84,14 @@ def fit(cfg: DictConfig, stage: str, stage_cfg: DictConfig, model: L.LightningMo
         log.warning("%s: trainer.max_time=%s stopped training after %d of %d steps; its results depend on this machine's speed",
                     stage, kwargs.get("max_time"), ended["steps"], ended["max_steps"])
     return trainer, folder / "last.ckpt"
+
+
+def check_batch_size(stage: str, stage_cfg: DictConfig) -> None:
+    """Refuse a ``model.<stage>.batch_size`` that is not a positive integer, by its config key (the
+    DataLoader's own error names neither the stage nor the key, and comes after the data loaded)."""
+    size = stage_cfg.get("batch_size")
+    if size is not None and (isinstance(size, bool) or not isinstance(size, int) or size < 1):
+        raise ValueError(f"model.{stage}.batch_size={size!r}: expected a positive integer")
 
 
 def checkpointing(folder: str | Path, monitor: str) -> list[ModelCheckpoint]:
