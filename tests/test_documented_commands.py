@@ -1,6 +1,7 @@
 """The commands and config keys the user-facing docs (README.md, docs/reproduce.md) give must still
 compose with Hydra, as the notebooks must still run: a renamed or removed option breaks a test here,
-not the first researcher who pastes the command.
+not the first researcher who pastes the command. Every link in README.md and docs/*.md must reach a
+file or a heading.
 
 Every ``python run.py ...`` command (fenced blocks, backslash continuations joined, and inline code),
 each point of a ``-m`` sweep, is composed from conf/ and resolved, and its task must exist. Inline
@@ -168,3 +169,31 @@ def test_every_documented_override_and_config_key_exists(docs_text, hydra_conf) 
             failures.append(f"`{key}`: no such key in the standard preset's config{' or any task config' if key.startswith('task.') else ''}")
     assert not failures, "documented config keys that no longer exist:\n" + "\n".join(failures)
     assert len(overrides) >= 20 and len(keys) >= 20, (len(overrides), len(keys))
+
+
+def github_anchor(heading: str) -> str:
+    """The id GitHub gives a Markdown heading: lower case, punctuation other than - and _ dropped, spaces as -."""
+    return re.sub(r"[^\w\- ]", "", heading.strip().lower()).replace(" ", "-")
+
+
+def test_every_link_in_the_docs_reaches_a_file_or_a_heading() -> None:
+    """Relative links resolve from the linking file's folder (as GitHub renders them), anchors to one
+    of its headings (a repeated heading's later ids get -1, -2, ...)."""
+    assert github_anchor("Where issue 4 stands (sessions 36-51; each env's best)") == "where-issue-4-stands-sessions-36-51-each-envs-best"
+    broken = []
+    for doc in [REPO / "README.md", *sorted((REPO / "docs").glob("*.md"))]:
+        text = doc.read_text()
+        anchors, seen = set(), {}
+        for heading in re.findall(r"^#{1,6} (.+)$", re.sub(r"```.*?```", "", text, flags=re.DOTALL), flags=re.MULTILINE):
+            base = github_anchor(heading)
+            anchors.add(base if base not in seen else f"{base}-{seen[base]}")
+            seen[base] = seen.get(base, 0) + 1
+        for target in re.findall(r"\]\(([^)\s]+)\)", text):
+            if re.match(r"[a-z]+://", target):
+                continue
+            path, _, anchor = target.partition("#")
+            if path and not (doc.parent / path).exists():
+                broken.append(f"{doc.relative_to(REPO)}: ({target}) is no file")
+            elif anchor and not path and anchor not in anchors:
+                broken.append(f"{doc.relative_to(REPO)}: (#{anchor}) is no heading of it")
+    assert not broken, "\n".join(broken)
