@@ -231,6 +231,23 @@ def test_an_unreadable_checkpoint_is_named_with_what_it_is(trained, tmp_path, co
         load_dynamics(bad)
 
 
+def test_a_checkpoint_with_other_layer_shapes_is_named_as_such(trained, tmp_path):
+    """A readable checkpoint of the same class whose weights were saved with other shapes (another
+    net config or code version) is not called truncated: the error says the weights do not fit."""
+    _, result = trained
+    good = Path(result["checkpoint"])
+    bad = tmp_path / "dynamics" / "last.ckpt"
+    bad.parent.mkdir()
+    (bad.parent / "config.yaml").write_text((good.parent / "config.yaml").read_text())
+    state = torch.load(good, map_location="cpu", weights_only=False)
+    name = next(k for k, v in state["state_dict"].items() if v.ndim == 2)
+    state["state_dict"][name] = torch.zeros(3, 3)
+    torch.save(state, bad)
+    with pytest.raises(CheckpointError, match=f"{bad}: a DynamicsPrior checkpoint whose weights do not fit.*{name}") as caught:
+        load_dynamics(bad)
+    assert "truncated" not in str(caught.value)
+
+
 def test_a_file_without_the_config_saved_beside_it_is_named(trained, tmp_path):
     _, result = trained
     lone = tmp_path / "prior.ckpt"
