@@ -48,12 +48,12 @@ def load_stage(path: str | Path, cls, env: str | None = None, n_particles: int |
     try:
         model = cls.load_from_checkpoint(str(path), map_location="cpu")
     except (RuntimeError, EOFError, KeyError, pickle.UnpicklingError) as error:  # torch's own messages do not name the file
-        first_line = str(error).splitlines()[0] if isinstance(error, RuntimeError) and str(error) else ""
-        if first_line.startswith("Error(s) in loading state_dict"):  # read fine; its layers are not this code's
-            mismatch = "; ".join(line.strip() for line in str(error).splitlines()[1:4] if line.strip())
+        lines = str(error).splitlines() if isinstance(error, RuntimeError) else []  # an unpickling error's advice is torch's, not ours
+        if lines and lines[0].startswith("Error(s) in loading state_dict"):  # read fine; its layers are not this code's
+            mismatch = "; ".join(line.strip() for line in lines[1:4] if line.strip())
             raise CheckpointError(f"{path}: a {cls.__name__} checkpoint whose weights do not fit this code's {cls.__name__} "
                                   f"(saved with other layer names or shapes: another net config or version; {mismatch})") from error
-        detail = f": {first_line}" if first_line else ""  # an unpickling error's advice is torch's, not ours
+        detail = f": {lines[0]}" if lines else ""
         raise CheckpointError(f"{path}: not a readable {cls.__name__} checkpoint (truncated, or another file; {type(error).__name__}{detail})") from error
     return model.eval(), cfg
 
