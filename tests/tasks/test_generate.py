@@ -114,6 +114,18 @@ def test_changed_config_never_overwrites_existing_data(tmp_path):
     assert (tmp_path / "rigid_fall/train/shard_00000.h5").read_bytes() == before
 
 
+def test_the_learned_stages_env_keys_leave_the_data_as_it_is(tmp_path):
+    """Only the env's scene (and name) makes the data: a dataset stays valid when the env config's
+    keys for the models change (before session 70 each such change refused the data as "another
+    configuration", e.g. RigidFall's standard budgets of session 69), and a scene change is still refused."""
+    first = generate(config(tmp_path))
+    again = generate(config(tmp_path, "env.graph_radius=0.1", "env.rigid_head=pooled", "env.start_frame=3",
+                            "env.standard_window_span=20", "env.standard_reference_steps.visual=7"))
+    assert (first["written"], again["written"]) == (4, 0)
+    assert gen.config_hash(config(tmp_path).env, config(tmp_path).data, 0) != gen.config_hash(
+        config(tmp_path, "env.scene.n_steps=9").env, config(tmp_path).data, 0)
+
+
 def run_py(*args, cwd):
     return subprocess.run([sys.executable, str(REPO / "run.py"), *args], cwd=cwd, capture_output=True, text=True, timeout=300)
 

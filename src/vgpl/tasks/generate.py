@@ -103,9 +103,13 @@ def scene_attrs(scene: Scene, seed: int) -> dict:
 
 
 def config_hash(env_cfg: DictConfig, data_cfg: DictConfig, seed: int) -> str:
-    """Hash of everything that determines a shard's bytes (not worker assignment or batch size)."""
+    """Hash of everything that determines a shard's bytes: the env's name and scene (engine and
+    renderer), the data's sizes and the seed; not worker assignment or batch size, nor the env's
+    keys for the learned stages (graph_radius, rigid_head, the standard preset's budgets, ...),
+    which change with the models without changing one byte of the data."""
     keep = {k: data_cfg[k] for k in ("n_rollouts", "train_fraction", "shard_size", "render")}
-    blob = json.dumps({"env": OmegaConf.to_container(env_cfg, resolve=True), "data": keep, "seed": seed}, sort_keys=True)
+    scene = {k: OmegaConf.to_container(env_cfg[k], resolve=True) if k == "scene" else env_cfg[k] for k in ("name", "scene")}
+    blob = json.dumps({"env": scene, "data": keep, "seed": seed}, sort_keys=True)
     return hashlib.sha256(blob.encode()).hexdigest()[:16]
 
 
