@@ -245,3 +245,24 @@ def test_the_standard_split_of_minutes_between_prior_and_module_is_per_env(env, 
         cfg = compose("config", overrides=[f"env={env}", "experiment=standard"])
     assert (cfg.trainer.max_time, cfg.model.inference.trainer.max_time) == (prior, module)
     assert (cfg.trainer.max_steps, cfg.model.inference.trainer.max_steps) == (78300, 3000)
+
+
+def test_the_standard_preset_in_steps_runs_the_reference_machines_steps_without_a_clock():
+    """experiment=standard_steps (session 70): each stage of RigidFall's standard preset runs the steps it
+    reached in its minutes on the machine its README numbers come from (sessions 68-69), with the noise-free
+    finish and the visual anneal over the same shares as on the clock, on the standard preset's dataset;
+    an env without reference steps fails to compose, naming the key it lacks."""
+    with initialize_config_dir(str(REPO / "conf"), version_base="1.3"):
+        steps = compose("config", overrides=["env=rigid_fall", "experiment=standard_steps"])
+        clock = compose("config", overrides=["env=rigid_fall", "experiment=standard"])
+        other = compose("config", overrides=["env=mass_rope", "experiment=standard_steps"])
+    stages = {"dynamics": steps.trainer, **{s: steps.model[s].trainer for s in ("visual", "inference", "densephysnet")}}
+    assert all(t.max_time is None for t in stages.values())
+    assert [stages[s].max_steps for s in ("dynamics", "visual", "inference", "densephysnet")] == [15129, 1499, 2600, 2000]
+    noise_free = steps.model.dynamics.net.noise_free_steps / steps.trainer.max_steps
+    assert noise_free == pytest.approx(clock.model.dynamics.net.noise_free_steps / clock.trainer.max_steps, abs=1e-3)
+    assert steps.model.visual.net.lr_anneal_steps / 1499 == pytest.approx(1 / 3, abs=1e-3)
+    assert steps.paths.data_dir == clock.paths.data_dir and steps.paths.ckpt_dir != clock.paths.ckpt_dir
+    assert steps.model.inference.window_span == clock.model.inference.window_span == 5  # the rest is the standard preset
+    with pytest.raises(Exception, match="env.standard_reference_steps.dynamics"):
+        other.trainer.max_steps  # noqa: B018
