@@ -245,6 +245,10 @@ def test_the_standard_split_of_minutes_between_prior_and_module_is_per_env(env, 
         cfg = compose("config", overrides=[f"env={env}", "experiment=standard"])
     assert (cfg.trainer.max_time, cfg.model.inference.trainer.max_time) == (prior, module)
     assert (cfg.trainer.max_steps, cfg.model.inference.trainer.max_steps) == (78300, 3000)
+    # what the Trainer is given (until session 70 the module's cap resolved apart from env and read 25 minutes)
+    given = {stage: trainer_kwargs(cfg, cfg.model[stage]) for stage in ("dynamics", "inference")}
+    assert (given["dynamics"]["max_time"], given["inference"]["max_time"]) == (prior, module)
+    assert (given["dynamics"]["max_steps"], given["inference"]["max_steps"]) == (78300, 3000)
 
 
 def test_the_standard_preset_in_steps_runs_the_reference_machines_steps_without_a_clock():
@@ -256,9 +260,9 @@ def test_the_standard_preset_in_steps_runs_the_reference_machines_steps_without_
         steps = compose("config", overrides=["env=rigid_fall", "experiment=standard_steps"])
         clock = compose("config", overrides=["env=rigid_fall", "experiment=standard"])
         other = compose("config", overrides=["env=mass_rope", "experiment=standard_steps"])
-    stages = {"dynamics": steps.trainer, **{s: steps.model[s].trainer for s in ("visual", "inference", "densephysnet")}}
-    assert all(t.max_time is None for t in stages.values())
-    assert [stages[s].max_steps for s in ("dynamics", "visual", "inference", "densephysnet")] == [15129, 1499, 2600, 2000]
+    given = {s: trainer_kwargs(steps, steps.model[s]) for s in ("dynamics", "visual", "inference", "densephysnet")}
+    assert all(t["max_time"] is None for t in given.values())
+    assert [given[s]["max_steps"] for s in ("dynamics", "visual", "inference", "densephysnet")] == [15129, 1499, 2600, 2000]
     noise_free = steps.model.dynamics.net.noise_free_steps / steps.trainer.max_steps
     assert noise_free == pytest.approx(clock.model.dynamics.net.noise_free_steps / clock.trainer.max_steps, abs=1e-3)
     assert steps.model.visual.net.lr_anneal_steps / 1499 == pytest.approx(1 / 3, abs=1e-3)

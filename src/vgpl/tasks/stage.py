@@ -35,9 +35,16 @@ def setup_run(cfg: DictConfig) -> None:
 
 
 def trainer_kwargs(cfg: DictConfig, stage_cfg: DictConfig) -> dict:
-    """The Trainer's arguments for a stage: the ``trainer`` group, overridden by ``stage_cfg.trainer``."""
-    return {**OmegaConf.to_container(cfg.trainer, resolve=True),
-            **OmegaConf.to_container(OmegaConf.create(stage_cfg.get("trainer") or {}), resolve=True)}
+    """The Trainer's arguments for a stage: the ``trainer`` group, overridden by ``stage_cfg.trainer``.
+
+    The stage's trainer is resolved where it sits in ``cfg``, so that its interpolations reach the
+    whole config (``${oc.select:env.standard_inference_max_time,...}``); a copy made with
+    OmegaConf.create would resolve them against itself and fall back to the default (until
+    session 70 RigidFall's 63-minute module cap read as 25 minutes so)."""
+    stage_trainer = stage_cfg.get("trainer") or {}
+    if isinstance(stage_trainer, DictConfig):
+        stage_trainer = OmegaConf.to_container(stage_trainer, resolve=True)
+    return {**OmegaConf.to_container(cfg.trainer, resolve=True), **stage_trainer}
 
 
 def fit(cfg: DictConfig, stage: str, stage_cfg: DictConfig, model: L.LightningModule, datamodule: L.LightningDataModule,
