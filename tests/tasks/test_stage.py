@@ -255,7 +255,7 @@ def test_the_standard_preset_in_steps_runs_the_reference_machines_steps_without_
     """experiment=standard_steps (session 70): each stage of RigidFall's standard preset runs the steps it
     reached in its minutes on the machine its README numbers come from (sessions 68-69), with the noise-free
     finish and the visual anneal over the same shares as on the clock, on the standard preset's dataset;
-    an env without reference steps fails to compose, naming the key it lacks."""
+    on an env without reference steps reading a step budget fails, naming the key it lacks."""
     with initialize_config_dir(str(REPO / "conf"), version_base="1.3"):
         steps = compose("config", overrides=["env=rigid_fall", "experiment=standard_steps"])
         clock = compose("config", overrides=["env=rigid_fall", "experiment=standard"])

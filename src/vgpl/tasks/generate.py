@@ -108,8 +108,8 @@ def config_hash(env_cfg: DictConfig, data_cfg: DictConfig, seed: int) -> str:
     keys for the learned stages (graph_radius, rigid_head, the standard preset's budgets, ...),
     which change with the models without changing one byte of the data."""
     keep = {k: data_cfg[k] for k in ("n_rollouts", "train_fraction", "shard_size", "render")}
-    scene = {k: OmegaConf.to_container(env_cfg[k], resolve=True) if k == "scene" else env_cfg[k] for k in ("name", "scene")}
-    blob = json.dumps({"env": scene, "data": keep, "seed": seed}, sort_keys=True)
+    env = {"name": env_cfg.name, "scene": OmegaConf.to_container(env_cfg.scene, resolve=True)}
+    blob = json.dumps({"env": env, "data": keep, "seed": seed}, sort_keys=True)
     return hashlib.sha256(blob.encode()).hexdigest()[:16]
 
 
