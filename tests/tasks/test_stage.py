@@ -10,6 +10,7 @@ import lightning as L
 import pytest
 import torch
 from hydra import compose, initialize_config_dir
+from omegaconf.errors import InterpolationKeyError
 from torch.utils.data import DataLoader, TensorDataset
 
 from tests.conftest import REPO
@@ -268,5 +269,5 @@ def test_the_standard_preset_in_steps_runs_the_reference_machines_steps_without_
     assert steps.model.visual.net.lr_anneal_steps / 1499 == pytest.approx(1 / 3, abs=1e-3)
     assert steps.paths.data_dir == clock.paths.data_dir and steps.paths.ckpt_dir != clock.paths.ckpt_dir
     assert steps.model.inference.window_span == clock.model.inference.window_span == 5  # the rest is the standard preset
-    with pytest.raises(Exception, match="env.standard_reference_steps.dynamics"):
+    with pytest.raises(InterpolationKeyError, match="env.standard_reference_steps.dynamics"):
         other.trainer.max_steps  # noqa: B018
