@@ -16,6 +16,7 @@ from torch.utils.data import DataLoader, TensorDataset
 from tests.conftest import REPO
 from vgpl.hardware import fast_precision
 from vgpl.models.step_learning_rate import annealed_fraction
+from vgpl.tasks import TASKS, check_resolvable, run_task
 from vgpl.tasks.pipeline import training_summary
 from vgpl.tasks.stage import LastValidation, checkpointing, snapshots, stopping, trainer_kwargs, validate_final
 
@@ -271,3 +272,26 @@ def test_the_standard_preset_in_steps_runs_the_reference_machines_steps_without_
     assert steps.model.inference.window_span == clock.model.inference.window_span == 5  # the rest is the standard preset
     with pytest.raises(InterpolationKeyError, match="env.standard_reference_steps.dynamics"):
         other.trainer.max_steps  # noqa: B018
+
+
+def test_a_task_whose_config_cannot_resolve_fails_before_it_reads_or_writes_anything(tmp_path):
+    """run_task resolves the whole composed config first: standard_steps on MassRope (no reference steps)
+    fails for a single stage as for the pipeline, naming the key, before data are generated or loaded
+    (a stage's trainer was resolved only once built, after its data were read: session 70's note).
+    Every other env x preset x task composes and resolves."""
+    root = tmp_path / "root"
+    with initialize_config_dir(str(REPO / "conf"), version_base="1.3"):
+        for task in ("generate", "train_dynamics", "pipeline"):
+            cfg = compose("config", overrides=["env=mass_rope", "experiment=standard_steps", f"task={task}",
+                                               f"paths.root_dir={root}", f"paths.output_dir={root}/out"])
+            with pytest.raises(ValueError, match=rf"task={task}: .*'model\.dynamics\.net\.noise_free_steps'.*"
+                                                 r"env\.standard_reference_steps\.dynamics_noise_free.*nothing was read or written"):
+                run_task(cfg)
+            assert not root.exists()
+        tasks = sorted(p.stem for p in (REPO / "conf" / "task").glob("*.yaml"))
+        assert set(tasks) == set(TASKS)
+        for env in ("rigid_fall", "mass_rope", "fluid_cube"):
+            for preset in ("quick", "standard", "paper") + (("standard_steps",) if env == "rigid_fall" else ()):
+                for task in tasks:
+                    check_resolvable(compose("config", overrides=[f"env={env}", f"experiment={preset}", f"task={task}",
+                                                                  f"paths.output_dir={tmp_path}/out"]))

@@ -7,7 +7,8 @@ from __future__ import annotations
 
 import importlib
 
-from omegaconf import DictConfig
+from omegaconf import DictConfig, OmegaConf
+from omegaconf.errors import InterpolationResolutionError
 
 TASKS: dict[str, str] = {
     "generate": "vgpl.tasks.generate:generate",
@@ -25,9 +26,24 @@ TASKS: dict[str, str] = {
 }
 
 
+def check_resolvable(cfg: DictConfig) -> None:
+    """Resolve every interpolation of the composed config once, without changing it, so that a key
+    which cannot resolve (say ``experiment=standard_steps`` on an env with no reference steps) fails
+    before the task reads data or writes anything: a stage's trainer is otherwise resolved only when
+    it is built, after its data are loaded. Values left ``???`` are not checked here; the task that
+    needs one says so."""
+    try:
+        OmegaConf.to_container(cfg, resolve=True)
+    except InterpolationResolutionError as e:
+        reason = str(e.msg).splitlines()[0]
+        raise ValueError(f"task={cfg.task.name}: the config key '{e.full_key}' cannot be resolved: {reason} "
+                         "(checked before the task started; nothing was read or written)") from e
+
+
 def run_task(cfg: DictConfig) -> dict:
     name = cfg.task.name
     if name not in TASKS:
         raise ValueError(f"unknown task.name '{name}': expected one of {sorted(TASKS)}")
+    check_resolvable(cfg)
     module, function = TASKS[name].split(":")
     return getattr(importlib.import_module(module), function)(cfg)
