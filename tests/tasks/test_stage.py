@@ -278,7 +278,7 @@ def test_a_task_whose_config_cannot_resolve_fails_before_it_reads_or_writes_anyt
     """run_task resolves the whole composed config first: standard_steps on MassRope (no reference steps)
     fails for a single stage as for the pipeline, naming the key, before data are generated or loaded
     (a stage's trainer was resolved only once built, after its data were read: session 70's note).
-    Every other env x preset x task composes and resolves."""
+    Every task resolves on the standard preset, and the pipeline on every other env x preset."""
     root = tmp_path / "root"
     with initialize_config_dir(str(REPO / "conf"), version_base="1.3"):
         for task in ("generate", "train_dynamics", "pipeline"):
@@ -290,8 +290,9 @@ def test_a_task_whose_config_cannot_resolve_fails_before_it_reads_or_writes_anyt
             assert not root.exists()
         tasks = sorted(p.stem for p in (REPO / "conf" / "task").glob("*.yaml"))
         assert set(tasks) == set(TASKS)
-        for env in ("rigid_fall", "mass_rope", "fluid_cube"):
-            for preset in ("quick", "standard", "paper") + (("standard_steps",) if env == "rigid_fall" else ()):
-                for task in tasks:
-                    check_resolvable(compose("config", overrides=[f"env={env}", f"experiment={preset}", f"task={task}",
-                                                                  f"paths.output_dir={tmp_path}/out"]))
+        runs = [("rigid_fall", "standard", task) for task in tasks] + [
+            (env, preset, "pipeline") for env in ("rigid_fall", "mass_rope", "fluid_cube")
+            for preset in ("quick", "standard", "paper") + (("standard_steps",) if env == "rigid_fall" else ())]
+        for env, preset, task in runs:
+            check_resolvable(compose("config", overrides=[f"env={env}", f"experiment={preset}", f"task={task}",
+                                                          f"paths.output_dir={tmp_path}/out"]))
