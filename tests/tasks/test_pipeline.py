@@ -64,6 +64,11 @@ def test_inferred_parameters_beat_the_range_midpoint(tiny):
     per_video = [float(r["future_mse_x1e4@10"]) for r in rows]  # eval.n_steps=10: the record's T+10 again
     assert sum(per_video) / len(per_video) == pytest.approx(full["future_mse_x1e4@10"], rel=1e-4)
     assert full[PER_VIDEO.format(10)] == pytest.approx({r["rollout_id"]: v for r, v in zip(rows, per_video)}, rel=1e-5)  # the record pairs videos
+    for step in (1, 5):  # Table 2's earlier horizons per video too, so that the four-way pairs at each of them (session 71)
+        column = [float(r[f"future_mse_x1e4@{step}"]) for r in rows]
+        assert sum(column) / len(column) == pytest.approx(full[f"future_mse_x1e4@{step}"], rel=1e-4)
+        assert full[PER_VIDEO.format(step)] == pytest.approx({r["rollout_id"]: v for r, v in zip(rows, column)}, rel=1e-5)
+        assert f"## Is VGPL lower at T+{step}? The same test videos, paired" in (tmp / "run/report.md").read_text()
     assert "| rigid_fall | VGPL w/o parameter estimation | 24 |" in (tmp / "run/report.md").read_text()  # every test video, paired
     breakdown = full["breakdown@10"]
     assert breakdown["mse"] == pytest.approx(full["future_mse_x1e4@10"], rel=1e-5)

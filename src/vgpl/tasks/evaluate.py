@@ -28,7 +28,7 @@ from vgpl.eval.error_breakdown import error_breakdown, rollout_mse_x1e4
 from vgpl.eval.error_sources import error_sources_rows
 from vgpl.eval.grounding import evaluate_grounding, proposed_frames
 from vgpl.eval.preview import write_gif
-from vgpl.eval.tables import PER_VIDEO, csv_text, markdown, paired_tables, param_rows, report_markdown, table1_rows, table2_rows
+from vgpl.eval.tables import HORIZONS, PER_VIDEO, csv_text, markdown, paired_tables, param_rows, report_markdown, table1_rows, table2_rows
 from vgpl.eval.tensorboard_media import add_gif, rollout_video
 from vgpl.models.dynamics_prior import DynamicsPrior
 from vgpl.models.inference import InferenceModule
@@ -127,12 +127,14 @@ def evaluate(cfg: DictConfig) -> dict:
     names = list(scene.param_names)
     record[f"breakdown@{last}"] = error_breakdown(result.prediction, result.truth, torch.as_tensor(scene.instance), torch.cat([test.params, result.params], 1),
                                                   last, names + [f"inferred_{n}" for n in names])
-    errors = rollout_mse_x1e4(result.prediction, result.truth, last)  # [R], each video's, for params.csv and the paired tables
-    record[PER_VIDEO.format(last)] = {str(int(i)): float(v) for i, v in zip(test.rollout_ids, errors)}
+    errors = {}  # T+k -> [R], each video's error at Table 2's horizons (and the last), for params.csv and the paired tables
+    for step in sorted({k for k in HORIZONS if k <= last} | {last}):
+        errors[step] = rollout_mse_x1e4(result.prediction, result.truth, step)
+        record[PER_VIDEO.format(step)] = {str(int(i)): float(v) for i, v in zip(test.rollout_ids, errors[step])}
     out = Path(cfg.paths.output_dir)
     out.mkdir(parents=True, exist_ok=True)
     (out / "metrics.json").write_text(json.dumps(record, indent=1))
-    (out / "params.csv").write_text(csv_text(*param_rows(names, test.params, result.params, test.rollout_ids, {f"future_mse_x1e4@{last}": errors})))
+    (out / "params.csv").write_text(csv_text(*param_rows(names, test.params, result.params, test.rollout_ids, {f"future_mse_x1e4@{k}": e for k, e in errors.items()})))
     notes = (f"\nProposals: the recorded particles + N(0, {noise_std:g}^2) m (eval.proposals=truth), not the visual prior: a diagnostic.\n"
              if truth else "")
     if exported is not None:
