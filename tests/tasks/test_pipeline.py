@@ -254,7 +254,8 @@ def test_hydra_multirun_of_the_four_ablations_reports_one_table(tiny):
     assert proc.returncode == 0, proc.stderr[-2000:]
     table = (tmp / "sweep_report/report.md").read_text()
     assert table.count("\n| VGPL |") == 2 and table.count("\n| VGPL w/o rigidness |") == 2  # Table 1 and Table 2
-    assert table.count("\n| rigid_fall | VGPL w/o") == 3  # and each ablation paired with VGPL on the same videos
+    # and each ablation paired with VGPL on the same videos, at each horizon up to eval.n_steps=10 (T+1, 5, 10)
+    assert table.count("## Is VGPL lower at T+") == 3 and table.count("\n| rigid_fall | VGPL w/o") == 3 * 3
     assert "| VGPL w/o refinement |" in table and "| VGPL w/o parameter estimation |" in table  # Table 2
     swept = {r["ablation"]: r for r in map(json.loads, (p.read_text() for p in sweep.glob("*/metrics.json")))}
     for record in result["records"]:
