@@ -8,6 +8,8 @@ share its module) -> report.
 Each step writes into ``<run dir>/<step>/`` (and ``pipeline.json``: each step's seconds, each
 training's steps run); checkpoints go to the stable ``paths.ckpt_dir``,
 so ``ckpt_path=last`` resumes a killed pipeline (finished shards are skipped, training resumes).
+``task.time_budget.total`` (the quick preset's 9 min 30 s) shortens the trainings' max_time when
+the untimed steps ran late (vgpl.tasks.time_budget).
 """
 
 from __future__ import annotations
@@ -23,6 +25,8 @@ from omegaconf import DictConfig, OmegaConf
 from vgpl.tasks.evaluate import evaluate, write_tables
 from vgpl.tasks.generate import generate
 from vgpl.tasks.identifiability import check_identifiability, identifiability_summary
+from vgpl.tasks.stage import trainer_kwargs
+from vgpl.tasks.time_budget import TimeBudget, seconds
 from vgpl.tasks.train_dynamics import train_dynamics
 from vgpl.tasks.train_inference import train_inference
 from vgpl.tasks.train_visual import export_proposals, train_visual
@@ -48,14 +52,39 @@ def step_config(cfg: DictConfig, out: Path, step: str, **updates) -> DictConfig:
     return c
 
 
+def trainings(cfg: DictConfig) -> dict[str, str]:
+    """The pipeline's training steps in the order it runs them -> the ``model.<stage>`` each trains."""
+    steps = {"train_dynamics": "dynamics", "train_visual": "visual", "train_inference/full": "inference"}
+    if "no_rigidness" in cfg.task.ablations:
+        steps["train_inference/no_rigidness"] = "inference"
+    if cfg.task.get("baseline", False):
+        steps["train_baseline"] = "densephysnet"
+    return steps
+
+
+def time_budget(cfg: DictConfig) -> TimeBudget:
+    """``task.time_budget`` over the planned max_time of each of the pipeline's trainings."""
+    spec = cfg.task.get("time_budget") or {}
+    planned = {step: seconds(trainer_kwargs(cfg, cfg.model[stage]).get("max_time")) for step, stage in trainings(cfg).items()}
+    return TimeBudget(seconds(spec.get("total")), spec.get("reserve_s", 0.0), spec.get("floor", 0.25), planned)
+
+
 def pipeline(cfg: DictConfig) -> dict:
     out = Path(cfg.paths.output_dir)
     times: dict[str, float] = {}
+    stages = trainings(cfg)
+    budget = time_budget(cfg)
 
     def run(step: str, fn, **updates):
         start = time.perf_counter()
         log.info("pipeline: %s", step)
-        result = fn(step_config(cfg, out, step, **updates))
+        c = step_config(cfg, out, step, **updates)
+        if step in stages:  # a training: its max_time as the budget allows
+            max_time = budget.max_time(step)
+            if max_time is not None:
+                stage = c.model[stages[step]]
+                stage.trainer = {**(stage.get("trainer") or {}), "max_time": {"seconds": max_time}}
+        result = fn(c)
         gc.collect()  # what a stage held (videos) can sit in reference cycles (trainer <-> module): free it before the next stage loads its own
         times[step] = round(time.perf_counter() - start, 1)
         return result
@@ -83,22 +112,27 @@ def pipeline(cfg: DictConfig) -> dict:
             curve_from = str(out / f"evaluate/{a}" / "metrics.json")
     if baseline:
         records.append(run("evaluate/densephysnet", evaluate, model={**OmegaConf.to_container(cfg.model, resolve=True), "name": "densephysnet"}))
-    notes = ("" if identifiability.get("skipped") else identifiability_summary(identifiability)) + training_summary(trained, times)
+    notes = ("" if identifiability.get("skipped") else identifiability_summary(identifiability)) + training_summary(trained, times, budget.given)
     text = write_tables(records, out, notes)
     print(text)
     log.info("pipeline step times (s): %s", times)
-    ends = {step: {k: r[k] for k in ("steps", "max_steps", "stopped_by", "precision")} for step, r in trained.items() if "steps" in r}
+    ends = {step: {k: r[k] for k in ("steps", "max_steps", "stopped_by", "precision")} | budget.given.get(step, {})
+            for step, r in trained.items() if "steps" in r}
     (out / "pipeline.json").write_text(json.dumps({"env": cfg.env.name, "times_s": times, "trained": ends}, indent=1))
     return {"env": cfg.env.name, "identifiability": identifiability, "records": records, "times_s": times, "report": str(out / "report.md")}
 
 
-def training_summary(trained: dict[str, dict], times: dict[str, float]) -> str:
+def training_summary(trained: dict[str, dict], times: dict[str, float], given: dict[str, dict] | None = None) -> str:
     """Markdown lines: each training step's steps run of those asked and its time, flagging those
-    that trainer.max_time cut short (their numbers depend on the machine's speed)."""
+    that trainer.max_time cut short (their numbers depend on the machine's speed) and those whose
+    max_time the pipeline's time budget shortened (``given``: TimeBudget.given)."""
     lines = ["", "Training steps run (of max_steps) and wall time:", ""]
     for step, result in trained.items():
         if "steps" not in result:  # DDP ranks other than 0 return no metrics
             continue
         cut = " **stopped by trainer.max_time**" if result["stopped_by"] == "max_time" else ""
+        g = (given or {}).get(step)
+        if g and g["max_time_s"] < g["planned_s"]:
+            cut += f" (task.time_budget shortened its max_time from {g['planned_s']:.0f} s to {g['max_time_s']:.0f} s)"
         lines.append(f"- {step}: {result['steps']} of {result['max_steps']} steps, {times.get(step, float('nan')):.0f} s{cut}")
     return "\n".join(lines) + "\n"
