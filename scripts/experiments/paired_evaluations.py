@@ -17,10 +17,9 @@ import torch
 
 from vgpl.eval.metrics import param_error_pct
 from vgpl.eval.paired import paired_bootstrap
+from vgpl.eval.rollout import FUTURE  # the per-video columns task=evaluate writes to params.csv
 from vgpl.eval.tables import read_params_csv
 from vgpl.sim.envs import ENVS, make_scene
-
-FUTURE = "future_mse_x1e4@{}"  # the per-video columns task=evaluate writes to params.csv
 
 
 def main() -> None:

@@ -15,7 +15,7 @@ import torch
 
 from vgpl.eval.error_breakdown import rollout_mse_x1e4
 from vgpl.eval.paired import paired_bootstrap
-from vgpl.eval.rollout import future_mse, rollout
+from vgpl.eval.rollout import FUTURE, future_mse, rollout
 
 SOURCES = ("start_positions", "start_velocities", "grouping", "rigidness", "params")
 # name -> the inputs taken from the truth; "inferred" is VGPL's rollout, "all true" the prior's own error
@@ -96,12 +96,12 @@ def error_sources(dynamics, inferred: RolloutInputs, true: RolloutInputs, driven
 def error_sources_rows(sources: dict) -> tuple[list[str], list[list[str]]]:
     """The table of ``error_sources``' result: one row per variant, the MSE at each horizon and the
     paired difference from the inferred rollout at the last one (mean [95% interval])."""
-    horizons = [k.split("@")[1] for k in next(iter(sources.values())) if k.startswith("future_mse_x1e4@")]
+    horizons = [k.split("@")[1] for k in next(iter(sources.values())) if k.startswith(FUTURE.format(""))]
     last = horizons[-1]
     header = ["inputs from the truth", *[f"T+{k}" for k in horizons], f"T+{last} minus inferred [95% CI]"]
     rows = []
     for name, row in sources.items():
         d = row.get(f"vs_inferred@{last}")
         paired = "" if d is None else f"{d['mean_diff']:+.1f} [{d['low']:+.1f}, {d['high']:+.1f}]"
-        rows.append([name, *[f"{row[f'future_mse_x1e4@{k}']:.2f}" for k in horizons], paired])
+        rows.append([name, *[f"{row[FUTURE.format(k)]:.2f}" for k in horizons], paired])
     return header, rows

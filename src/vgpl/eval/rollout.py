@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import torch
 
+FUTURE = "future_mse_x1e4@{}"  # metric key: the mean squared position error x 1e4 at T+k (``future_mse``)
+
 
 def rollout(model, positions, grouping, rigidness, params, planes, kinematic, n_steps: int, history: int | None = None) -> torch.Tensor:
     """Roll the model forward from the first ``history`` frames of ``positions``.
@@ -27,4 +29,4 @@ def rollout(model, positions, grouping, rigidness, params, planes, kinematic, n_
 def future_mse(pred: torch.Tensor, truth: torch.Tensor, horizons=(1, 5, 10, 20)) -> dict[str, float]:
     """Mean squared position error x 1e4 at each horizon (mean over scenes, particles and
     coordinates, as the paper's code: F.mse_loss). pred, truth [B, n_steps, N, 3]."""
-    return {f"future_mse_x1e4@{k}": float(((pred[:, k - 1] - truth[:, k - 1]) ** 2).mean() * 1e4) for k in horizons if k <= pred.shape[1]}
+    return {FUTURE.format(k): float(((pred[:, k - 1] - truth[:, k - 1]) ** 2).mean() * 1e4) for k in horizons if k <= pred.shape[1]}

@@ -12,6 +12,7 @@ import torch
 
 from vgpl.eval.paired import paired_bootstrap
 from vgpl.eval.pooled import pool_runs, variant
+from vgpl.eval.rollout import FUTURE
 
 ENVS = ("mass_rope", "rigid_fall", "fluid_cube")  # the paper's column order
 HORIZONS = (1, 5, 10, 20)
@@ -24,7 +25,7 @@ ROWS = {  # (method, ablation) -> row name, in the paper's order
 }
 TABLE1_ROWS = [("densephysnet", "full"), ("vgpl", "no_rigidness"), ("vgpl", "full")]
 TABLE2_ROWS = [("vgpl", "no_rigidness"), ("vgpl", "no_refinement"), ("vgpl", "no_params"), ("vgpl", "full")]
-PER_VIDEO = "per_video_future_mse_x1e4@{}"  # record key: {rollout id (str): that video's MSE x 1e4 at T+k}
+PER_VIDEO = "per_video_" + FUTURE  # record key: {rollout id (str): that video's MSE x 1e4 at T+k}
 
 
 def _key(record: dict) -> tuple[str, str]:
@@ -75,7 +76,7 @@ def table1_rows(records: list[dict]) -> tuple[list[str], list[list[str]]]:
 
 def table2_rows(records: list[dict]) -> tuple[list[str], list[list[str]]]:
     """Header and rows: future MSE x 1e4 at T+1, 5, 10, 20, per env."""
-    cells = lambda r: [f"{r[f'future_mse_x1e4@{k}']:.3f}" if r and f"future_mse_x1e4@{k}" in r else "" for k in HORIZONS]  # noqa: E731
+    cells = lambda r: [f"{r[FUTURE.format(k)]:.3f}" if r and FUTURE.format(k) in r else "" for k in HORIZONS]  # noqa: E731
     return ["method"] + [f"{e} T+{k}" for e in _envs(records) for k in HORIZONS], _method_rows(records, TABLE2_ROWS, cells)
 
 
@@ -184,7 +185,7 @@ def runs_rows(pooled: list[dict]) -> tuple[list[str], list[list[str]]]:
     """Header and rows: each pooled variant's run count, and each run's parameter MAE and T+20."""
     cell = lambda r, k: ", ".join(f"{v:.1f}" for v in r["run_values"].get(k, []))  # noqa: E731
     return (["env", "method", "runs", "parameter MAE % per run", "T+20 per run"],
-            [[r["env"], ROWS[_key(r)], str(r["runs"]), cell(r, "param_mae_pct"), cell(r, "future_mse_x1e4@20")] for r in pooled])
+            [[r["env"], ROWS[_key(r)], str(r["runs"]), cell(r, "param_mae_pct"), cell(r, FUTURE.format(20))] for r in pooled])
 
 
 def csv_text(header: list[str], rows: list[list[str]]) -> str:

@@ -28,6 +28,7 @@ from vgpl.eval.error_breakdown import error_breakdown, rollout_mse_x1e4
 from vgpl.eval.error_sources import error_sources_rows
 from vgpl.eval.grounding import evaluate_grounding, proposed_frames
 from vgpl.eval.preview import write_gif
+from vgpl.eval.rollout import FUTURE
 from vgpl.eval.tables import HORIZONS, PER_VIDEO, csv_text, markdown, paired_tables, param_rows, report_markdown, table1_rows, table2_rows
 from vgpl.eval.tensorboard_media import add_gif, rollout_video
 from vgpl.models.dynamics_prior import DynamicsPrior
@@ -134,7 +135,7 @@ def evaluate(cfg: DictConfig) -> dict:
     out = Path(cfg.paths.output_dir)
     out.mkdir(parents=True, exist_ok=True)
     (out / "metrics.json").write_text(json.dumps(record, indent=1))
-    (out / "params.csv").write_text(csv_text(*param_rows(names, test.params, result.params, test.rollout_ids, {f"future_mse_x1e4@{k}": e for k, e in errors.items()})))
+    (out / "params.csv").write_text(csv_text(*param_rows(names, test.params, result.params, test.rollout_ids, {FUTURE.format(k): e for k, e in errors.items()})))
     notes = (f"\nProposals: the recorded particles + N(0, {noise_std:g}^2) m (eval.proposals=truth), not the visual prior: a diagnostic.\n"
              if truth else "")
     if exported is not None:
