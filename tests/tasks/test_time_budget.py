@@ -38,6 +38,18 @@ def test_max_time_is_parsed_as_lightnings_timer_parses_it():
     assert seconds(None) is None
 
 
+@pytest.mark.parametrize("bad", ["9:30", {"minutes": "x"}, 570])
+def test_a_duration_lightning_cannot_read_is_refused_by_its_key_before_the_pipeline_starts(tmp_path, bad):
+    with pytest.raises(ValueError, match=r"task.time_budget.total=.*expected a duration as trainer.max_time takes it"):
+        seconds(bad, "task.time_budget.total")
+    with initialize_config_dir(str(REPO / "conf"), version_base="1.3"):
+        cfg = compose("config", overrides=[f"paths.root_dir={tmp_path / 'root'}", f"paths.output_dir={tmp_path / 'run'}",
+                                           "task.time_budget.total=9:30"])
+    with pytest.raises(ValueError, match=r"task.time_budget.total='9:30'"):
+        pipeline_module.pipeline(cfg)
+    assert not (tmp_path / "root").exists()  # nothing generated
+
+
 def test_a_training_keeps_its_plan_when_the_plan_fits_and_its_share_when_it_does_not():
     assert scaled_max_time(150.0, ahead_s=450.0, left_s=463.5, floor=0.25) == 150.0
     assert scaled_max_time(60.0, ahead_s=300.0, left_s=282.5, floor=0.25) == pytest.approx(56.5)

@@ -65,8 +65,9 @@ def trainings(cfg: DictConfig) -> dict[str, str]:
 def time_budget(cfg: DictConfig) -> TimeBudget:
     """``task.time_budget`` over the planned max_time of each of the pipeline's trainings."""
     spec = cfg.task.get("time_budget") or {}
-    planned = {step: seconds(trainer_kwargs(cfg, cfg.model[stage]).get("max_time")) for step, stage in trainings(cfg).items()}
-    return TimeBudget(seconds(spec.get("total")), spec.get("reserve_s", 0.0), spec.get("floor", 0.25), planned)
+    planned = {step: seconds(trainer_kwargs(cfg, cfg.model[stage]).get("max_time"), f"model.{stage}.trainer.max_time")
+               for step, stage in trainings(cfg).items()}
+    return TimeBudget(seconds(spec.get("total"), "task.time_budget.total"), spec.get("reserve_s", 0.0), spec.get("floor", 0.25), planned)
 
 
 def pipeline(cfg: DictConfig) -> dict:

@@ -25,12 +25,16 @@ from lightning.pytorch.callbacks import Timer
 log = logging.getLogger(__name__)
 
 
-def seconds(max_time) -> float | None:
+def seconds(max_time, key: str = "trainer.max_time") -> float | None:
     """A Trainer's ``max_time`` ("DD:HH:MM:SS", a dict of timedelta's keywords, or None) in
-    seconds, parsed as Lightning's Timer parses it."""
+    seconds, parsed as Lightning's Timer parses it; anything else is refused by its config ``key``."""
     if max_time is None:
         return None
-    return Timer(duration=max_time).time_remaining()
+    try:
+        return Timer(duration=max_time).time_remaining()
+    except Exception as e:  # Lightning's MisconfigurationException, or timedelta's TypeError / AttributeError
+        raise ValueError(f"{key}={max_time!r}: expected a duration as trainer.max_time takes it, \"DD:HH:MM:SS\" "
+                         f"(e.g. \"00:00:09:30\") or a dict of timedelta keywords ({{seconds: 570}}), or null") from e
 
 
 def scaled_max_time(planned_s: float, ahead_s: float, left_s: float, floor: float) -> float:
