@@ -96,10 +96,10 @@ def pipeline(cfg: DictConfig) -> dict:
     identifiability = run("identifiability", check_identifiability)
     trained["train_visual"] = run("train_visual", train_visual)
     run("export_proposals", export_proposals)
-    variants = ["full"] + (["no_rigidness"] if "no_rigidness" in cfg.task.ablations else [])
-    for v in variants:
-        trained[f"train_inference/{v}"] = run(f"train_inference/{v}", train_inference, ablation=ablation_config(v))
-    baseline = bool(cfg.task.get("baseline", False))
+    for step in stages:  # the inference modules (full [and no_rigidness]) in the order the budget planned them
+        if step.startswith("train_inference/"):
+            trained[step] = run(step, train_inference, ablation=ablation_config(step.removeprefix("train_inference/")))
+    baseline = "train_baseline" in stages
     if baseline:
         from vgpl.tasks.baseline import train_baseline
 
