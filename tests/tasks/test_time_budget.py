@@ -60,7 +60,7 @@ def test_a_late_run_catches_up_in_its_trainings_and_ends_within_its_total():
     """The fp32 VM's main job of session 71 (generate 46.5 s, the prior 7 s past its max_time, the
     identifiability sweep 24 s, ...) replayed on the budget's clock: 9 min 30 s less 60 s reserved."""
     clock = Clock()
-    budget = TimeBudget(570.0, 60.0, 0.25, QUICK, clock=clock)
+    budget = TimeBudget(570.0, QUICK, reserve_s=60.0, floor=0.25, clock=clock)
     clock.now += 46.5                                        # generate
     assert budget.max_time("train_dynamics") == 150.0       # 463.5 s left for 450 s planned: on time
     clock.now += 157.0 + 24.0                                # the prior, the identifiability sweep
@@ -78,16 +78,27 @@ def test_a_late_run_catches_up_in_its_trainings_and_ends_within_its_total():
 
 def test_without_a_total_or_a_clock_every_training_keeps_its_own_max_time():
     clock = Clock()
-    off = TimeBudget(None, 60.0, 0.25, QUICK, clock=clock)
+    off = TimeBudget(None, QUICK, reserve_s=60.0, floor=0.25, clock=clock)
     clock.now += 10_000.0
     assert [off.max_time(s) for s in QUICK] == list(QUICK.values()) and off.given == {}
-    stepped = TimeBudget(100.0, 0.0, 0.25, {"train_baseline": None, "train_visual": 60.0}, clock=clock)
+    assert not any(off.shortened(s) for s in QUICK)
+    stepped = TimeBudget(100.0, {"train_baseline": None, "train_visual": 60.0}, floor=0.25, clock=clock)
     clock.now += 70.0
     assert stepped.max_time("train_baseline") is None  # trains by steps: not shortened, not counted
     assert stepped.max_time("train_visual") == 30.0
+    assert stepped.shortened("train_visual") and not stepped.shortened("train_baseline")
 
 
-@pytest.mark.parametrize(("key", "value", "expected"), [("total", 0.0, "task.time_budget.total"), ("floor", 0.0, "task.time_budget.floor")])
+def test_a_task_config_from_before_the_budget_keeps_every_trainings_own_max_time():
+    with initialize_config_dir(str(REPO / "conf"), version_base="1.3"):
+        cfg = compose("config", overrides=["~task.time_budget"])
+    budget = pipeline_module.time_budget(cfg)
+    assert budget.total_s is None and budget.ahead == QUICK
+    assert budget.max_time("train_dynamics") == 150.0 and not budget.shortened("train_dynamics")
+
+
+@pytest.mark.parametrize(("key", "value", "expected"), [("total", 0.0, "task.time_budget.total"), ("floor", 0.0, "task.time_budget.floor"),
+                                                        ("reserve_s", -60.0, "task.time_budget.reserve_s")])
 def test_a_budget_that_cannot_work_is_refused_by_its_key(key, value, expected):
     kwargs = {"total_s": 570.0, "reserve_s": 60.0, "floor": 0.25} | {"total_s" if key == "total" else key: value}
     with pytest.raises(ValueError, match=expected):
@@ -102,6 +113,7 @@ def test_the_pipeline_gives_each_trainer_the_budgets_max_time_and_reports_it(tmp
     clock = Clock()
     monkeypatch.setattr(time_budget_module, "time", SimpleNamespace(perf_counter=clock))
     given: dict[str, float] = {}
+    spelled: dict[str, object] = {}  # step -> max_time as its Trainer's config spells it
 
     def generate(c):
         clock.now += 10.0 + late_s
@@ -109,7 +121,8 @@ def test_the_pipeline_gives_each_trainer_the_budgets_max_time_and_reports_it(tmp
     def training(stage):
         def train(c):
             step = str(Path(c.paths.output_dir).relative_to(tmp_path))
-            given[step] = seconds(trainer_kwargs(c, c.model[stage])["max_time"])
+            spelled[step] = trainer_kwargs(c, c.model[stage])["max_time"]
+            given[step] = seconds(spelled[step])
             clock.now += given[step]
             return {"steps": 1, "max_steps": 2, "stopped_by": "max_time", "precision": "32-true"}
         return train
@@ -130,6 +143,7 @@ def test_the_pipeline_gives_each_trainer_the_budgets_max_time_and_reports_it(tmp
     trained = json.loads((tmp_path / "pipeline.json").read_text())["trained"]
     if late_s == 0.0:
         assert given == QUICK and "task.time_budget" not in notes["text"]
+        assert all(isinstance(v, str) for v in spelled.values())  # on time, each keeps the preset's own "DD:HH:MM:SS"
         return
     assert all(given[s] < QUICK[s] for s in QUICK)
     assert clock.now - 1000.0 == pytest.approx(570.0 - 60.0)  # the trainings end where the reserve begins

@@ -63,11 +63,14 @@ def trainings(cfg: DictConfig) -> dict[str, str]:
 
 
 def time_budget(cfg: DictConfig) -> TimeBudget:
-    """``task.time_budget`` over the planned max_time of each of the pipeline's trainings."""
-    spec = cfg.task.get("time_budget") or {}
+    """``task.time_budget`` over the planned max_time of each of the pipeline's trainings (off for a
+    task config without the block, as before it existed)."""
     planned = {step: seconds(trainer_kwargs(cfg, cfg.model[stage]).get("max_time"), f"model.{stage}.trainer.max_time")
                for step, stage in trainings(cfg).items()}
-    return TimeBudget(seconds(spec.get("total"), "task.time_budget.total"), spec.get("reserve_s", 0.0), spec.get("floor", 0.25), planned)
+    spec = cfg.task.get("time_budget")
+    if spec is None:
+        return TimeBudget(None, planned)
+    return TimeBudget(seconds(spec.total, "task.time_budget.total"), planned, reserve_s=spec.reserve_s, floor=spec.floor)
 
 
 def pipeline(cfg: DictConfig) -> dict:
@@ -80,9 +83,9 @@ def pipeline(cfg: DictConfig) -> dict:
         start = time.perf_counter()
         log.info("pipeline: %s", step)
         c = step_config(cfg, out, step, **updates)
-        if step in stages:  # a training: its max_time as the budget allows
+        if step in stages:  # a training: its max_time as the budget allows (its own, as the preset spells it, unless shortened)
             max_time = budget.max_time(step)
-            if max_time is not None:
+            if budget.shortened(step):
                 stage = c.model[stages[step]]
                 stage.trainer = {**(stage.get("trainer") or {}), "max_time": {"seconds": max_time}}
         result = fn(c)

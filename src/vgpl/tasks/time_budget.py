@@ -50,14 +50,17 @@ class TimeBudget:
     """Hands out max_time to a pipeline's trainings in their order.
 
     ``planned`` maps each training step, in the order it will run, to its planned max_time in
-    seconds (None: no clock; it is left so and not counted). ``total_s`` None turns the budget off.
+    seconds (None: no clock; it is left so and not counted). ``total_s`` None turns the budget off
+    (``reserve_s`` and ``floor`` then do nothing).
     The budget's clock (``time.perf_counter`` unless given) starts when it is made.
     """
 
-    def __init__(self, total_s: float | None, reserve_s: float, floor: float, planned: dict[str, float | None],
+    def __init__(self, total_s: float | None, planned: dict[str, float | None], reserve_s: float = 0.0, floor: float = 1.0,
                  clock: Callable[[], float] | None = None):
         if total_s is not None and total_s <= 0:
             raise ValueError(f"task.time_budget.total: expected a positive duration, got {total_s} s")
+        if reserve_s < 0:
+            raise ValueError(f"task.time_budget.reserve_s: expected seconds >= 0 held back for the untimed steps, got {reserve_s}")
         if not 0.0 < floor <= 1.0:
             raise ValueError(f"task.time_budget.floor: expected a fraction in (0, 1], got {floor}")
         self.total_s, self.reserve_s, self.floor = total_s, float(reserve_s), float(floor)
@@ -67,7 +70,8 @@ class TimeBudget:
         self.given: dict[str, dict] = {}  # step -> {"planned_s", "max_time_s", "left_s"} for the report
 
     def max_time(self, step: str) -> float | None:
-        """The max_time (s) for ``step``, which starts now; call it once per training."""
+        """The max_time (s) for ``step``, which starts now; call it once per training. It is the
+        planned one unless ``shortened(step)``."""
         planned = self.ahead.pop(step)
         if self.total_s is None or planned is None:
             return planned
@@ -80,3 +84,8 @@ class TimeBudget:
             log.warning("task.time_budget: %s gets max_time %.0f s of its planned %.0f s; %.0f s of the budget remain "
                         "for %.0f s of planned training%s", step, given, planned, max(left, 0.0), ahead, overrun)
         return given
+
+    def shortened(self, step: str) -> bool:
+        """Whether the budget gave ``step`` (already handed its max_time) less than its plan."""
+        g = self.given.get(step)
+        return g is not None and g["max_time_s"] < g["planned_s"]
