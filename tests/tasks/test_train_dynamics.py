@@ -97,6 +97,23 @@ def test_parameter_sweep_from_proposals_starts_from_them_and_names_a_missing_fil
     assert from_proposals["future_mse_x1e4@10"] == from_truth["future_mse_x1e4@10"]  # the future MSE is unaffected
 
 
+def test_parameter_sweep_rolls_every_instance_with_the_rigidness_asked_for(trained):
+    """task.param_sweep_rigidness: the oracle of VGPL w/o rigidness (Q = 0) is another sweep than the
+    true labels'; Q = 1 is RigidFall's truth (every cube rigid), so the same sweep to the digit."""
+    tmp, result = trained
+    base = (tmp, "task=evaluate_dynamics", f"ckpt_path={result['checkpoint']}", "task.rigidness_grid=0", "eval.max_rollouts=2")
+    truth = evaluate_dynamics(config(*base))
+    rigid = evaluate_dynamics(config(*base, "task.param_sweep_rigidness=1"))
+    free = evaluate_dynamics(config(*base, "task.param_sweep_rigidness=0"))
+    assert truth["param_sweep_rigidness"] is None and free["param_sweep_rigidness"] == 0.0
+    assert rigid["rollout_l1_over_grid/gravity"] == truth["rollout_l1_over_grid/gravity"]
+    assert free["rollout_l1_over_grid/gravity"] != truth["rollout_l1_over_grid/gravity"]
+    assert free["future_mse_x1e4@10"] == truth["future_mse_x1e4@10"]  # the test rollouts keep the true labels
+    with pytest.raises(ValueError, match=r"task.param_sweep_rigidness=1.5: expected null .* or a rigidness Q in \[0, 1\]"):
+        evaluate_dynamics(config(*base, "task.param_sweep_rigidness=1.5"))
+    assert json.loads((tmp / "run/metrics.json").read_text())["param_sweep_rigidness"] == 0.0  # refused before writing anything
+
+
 def test_gradient_agreement_by_window_start_is_the_per_window_numbers_and_bad_starts_name_the_option(trained):
     from vgpl.checkpoint import scene_of
     from vgpl.data.trajectories import ground_truth_grouping

@@ -47,18 +47,31 @@ def inference_window(scene: Scene, test: Rollouts, observed: int, horizon: int, 
     return true_window(scene, test, start_frame, n_frames, n)
 
 
+def check_sweep_rigidness(value) -> float | None:
+    """Refuse a ``task.param_sweep_rigidness`` that is neither null (the true labels) nor a Q in [0, 1]."""
+    if value is None:
+        return None
+    if isinstance(value, bool) or not isinstance(value, int | float) or not 0.0 <= value <= 1.0:
+        raise ValueError(f"task.param_sweep_rigidness={value!r}: expected null (every instance's true label) or a rigidness Q in [0, 1] "
+                         "given to every instance (0: as VGPL w/o rigidness's prior sees them)")
+    return float(value)
+
+
 def evaluate_identifiability(model: DynamicsPrior, scene: Scene, test: Rollouts, root: str, observed: int, horizon: int, grid: int,
-                             max_rollouts: int | None = None, start_frame: int = 0, history: str = "truth", refine: int = 0) -> dict:
+                             max_rollouts: int | None = None, start_frame: int = 0, history: str = "truth", refine: int = 0,
+                             rigidness: float | None = None) -> dict:
     """``oracle_param_sweep`` on the first ``max_rollouts`` rollouts of the test split ``test``
     (read from ``root``), over the inference module's training window: ``observed`` frames from
     ``start_frame`` on plus ``horizon`` more, rolled from the first H, over ``grid`` values and then
     ``refine`` around each scene's best. ``history="proposals"``
     starts the rollouts from the VisualPrior's exported proposals instead of the true positions
-    (what an inference module without refinement would see)."""
+    (what an inference module without refinement would see). ``rigidness``: the Q every instance
+    is rolled with (None: the true labels; 0: the prior of VGPL w/o rigidness)."""
     if history not in ("truth", "proposals"):
         raise ValueError(f"task.param_sweep_history={history!r}: expected 'truth' or 'proposals'")
     h = model.hparams.history
-    positions, grouping, rigidness, params, planes, kinematic = inference_window(scene, test, observed, horizon, start_frame, max_rollouts)
+    positions, grouping, labels, params, planes, kinematic = inference_window(scene, test, observed, horizon, start_frame, max_rollouts)
+    labels = labels if rigidness is None else torch.full_like(labels, rigidness)
     n, n_frames = positions.shape[:2]
     if history == "proposals":
         path = proposals_path(root, scene.name, "test")
@@ -67,18 +80,19 @@ def evaluate_identifiability(model: DynamicsPrior, scene: Scene, test: Rollouts,
             raise DatasetError(f"{path}: proposals do not cover the first {n} test rollouts' frames {start_frame}..{start_frame + h - 1}; re-export with task=export_proposals")
         positions[:, :h] = proposals.positions[:n, start_frame : start_frame + h]
     model.eval()
-    return oracle_param_sweep(model, positions, grouping, rigidness, params, planes, kinematic, n_frames - h, grid, refine) | {"truth": params}
+    return oracle_param_sweep(model, positions, grouping, labels, params, planes, kinematic, n_frames - h, grid, refine) | {"truth": params}
 
 
 def sweep_metrics(model: DynamicsPrior, scene: Scene, test: Rollouts, cfg: DictConfig, start_frame: int, out: Path, grid: int,
-                  max_rollouts: int | None, history: str = "truth", refine: int = 0) -> dict:
+                  max_rollouts: int | None, history: str = "truth", refine: int = 0, rigidness: float | None = None) -> dict:
     """Run the sweep over ``cfg.model.inference``'s window from ``start_frame`` on and return its flat metrics
     (``oracle_param_mae_pct/<name>``, ``oracle_param_bias_pct/<name>``, ``grid_param_mae_pct/<name>``, ``midpoint_param_mae_pct/<name>``,
     ``rollout_l1_over_grid/<name>``);
     the scatter of oracle against truth goes to ``out/oracle_<name>.png``."""
     inf = cfg.model.inference
-    sweep = evaluate_identifiability(model, scene, test, cfg.data.root, inf.observed, inf.net.horizon, grid, max_rollouts, start_frame, history, refine)
-    result: dict = {"param_sweep_history": history, "param_grid": grid, "param_grid_refine": refine}
+    sweep = evaluate_identifiability(model, scene, test, cfg.data.root, inf.observed, inf.net.horizon, grid, max_rollouts, start_frame, history, refine,
+                                     rigidness)
+    result: dict = {"param_sweep_history": history, "param_grid": grid, "param_grid_refine": refine, "param_sweep_rigidness": rigidness}
     for j, name in enumerate(scene.param_names):
         result[f"oracle_param_mae_pct/{name}"] = float(sweep["oracle_param_mae_pct"][j])
         result[f"oracle_param_bias_pct/{name}"] = float(sweep["oracle_param_bias_pct"][j])

@@ -20,7 +20,7 @@ from vgpl.eval.preview import write_gif
 from vgpl.eval.tensorboard_media import add_gif, rollout_video
 from vgpl.models.dynamics_prior import DynamicsPrior
 from vgpl.sim.scene import Scene
-from vgpl.tasks.identifiability import check_rigidness_grid, check_window_starts, gradient_agreement_by_start, rigidness_metrics, sweep_metrics
+from vgpl.tasks.identifiability import check_rigidness_grid, check_sweep_rigidness, check_window_starts, gradient_agreement_by_start, rigidness_metrics, sweep_metrics
 from vgpl.tasks.stage import fit, setup_run, stopping
 
 log = logging.getLogger(__name__)
@@ -115,6 +115,7 @@ def evaluate_dynamics(cfg: DictConfig) -> dict:
     q_grid = int(cfg.task.get("rigidness_grid", 0))
     if q_grid > 0:  # so is a grid without both labels
         check_rigidness_grid(q_grid)
+    sweep_rigidness = check_sweep_rigidness(cfg.task.get("param_sweep_rigidness"))
     start = window_start(cfg.task.get("start_frame"), train_cfg.env.get("start_frame", 0), test.positions.shape[1])
     metrics, pred, truth = evaluate_rollouts(model, scene, test, cfg.eval.observed, cfg.eval.n_steps, cfg.eval.get("max_rollouts"), start)
     out = Path(cfg.paths.output_dir)
@@ -128,7 +129,7 @@ def evaluate_dynamics(cfg: DictConfig) -> dict:
     grid = int(cfg.task.get("param_grid", 0))
     if grid > 0:
         result |= sweep_metrics(model, scene, test, cfg, start, out, grid, cfg.eval.get("max_rollouts"), cfg.task.get("param_sweep_history", "truth"),
-                                int(cfg.task.get("param_grid_refine", 0)))
+                                int(cfg.task.get("param_grid_refine", 0)), sweep_rigidness)
         log.info("identifiability: %s", {k: v for k, v in result.items() if "param_mae" in k})
         write_metrics()
     if q_grid > 0:
