@@ -400,7 +400,8 @@ def test_identifiability_gate_writes_its_sweep_and_warns_or_stops(trained, caplo
 
     tmp, result = trained
     gate = ["task=pipeline", "task.identifiability.grid=5", "task.identifiability.max_rollouts=3"]
-    passed = check_identifiability(config(tmp, *gate, "task.identifiability.max_ratio=1e9"))
+    with caplog.at_level("WARNING"):
+        passed = check_identifiability(config(tmp, *gate, "task.identifiability.max_ratio=1e9"))
     written = json.loads((tmp / "run/identifiability.json").read_text())
     assert passed["identified"] and written["identified"] and written["checkpoint"] == result["checkpoint"]
     assert len(written["rollout_l1_over_grid/gravity"]) == 5 and 0 <= written["oracle_param_mae_pct/gravity"] <= 100
@@ -411,9 +412,21 @@ def test_identifiability_gate_writes_its_sweep_and_warns_or_stops(trained, caplo
     assert f"(mean signed error {written['oracle_param_bias_pct/gravity']:+.1f})" in identifiability_summary(written)
     assert (f"(a perfect prior on this 5-point grid, refined by 9 values around each scene's best: {written['grid_param_mae_pct/gravity']:.1f}%"
             in identifiability_summary(written))
+    # the rigidness sweep (conf/task/pipeline.yaml's 3 values): one line per object type in the report
+    assert written["rigidness_types"] == ["cube"] and written["rigidness_grid"] == [0.0, 0.5, 1.0]
+    share = written["rigidness_truth_preferred/cube"]
+    assert (f"- rigidness of cube: the true label rolls better than the opposite one in {100 * share:.0f}% of scenes (rollout L1 at Q = 0 / 0.5 / 1: "
+            in identifiability_summary(written))
+    assert ("does not prefer the true rigidness (cube: " in caplog.text) == (share < 0.5)
     # the same numbers as task=evaluate_dynamics over the same videos and grid
-    again = evaluate_dynamics(config(tmp, "task=evaluate_dynamics", f"ckpt_path={result['checkpoint']}", "task.param_grid=5", "eval.max_rollouts=3"))
+    again = evaluate_dynamics(config(tmp, "task=evaluate_dynamics", f"ckpt_path={result['checkpoint']}", "task.param_grid=5", "eval.max_rollouts=3",
+                                     "task.rigidness_grid=3"))
     assert again["oracle_param_mae_pct/gravity"] == written["oracle_param_mae_pct/gravity"]
+    assert again["rollout_l1_over_rigidness/cube"] == written["rollout_l1_over_rigidness/cube"]
+    off = check_identifiability(config(tmp, *gate, "task.identifiability.rigidness_grid=0"))
+    assert off["rigidness_types"] == [] and "rigidness_grid" not in off and "rigidness of" not in identifiability_summary(off)
+    with pytest.raises(ValueError, match=r"task.rigidness_grid=1: expected 0 \(skip\) or at least 2 values"):
+        check_identifiability(config(tmp, *gate, "task.identifiability.rigidness_grid=1"))
     with caplog.at_level("WARNING"):  # max_ratio=0: nothing passes
         warned = check_identifiability(config(tmp, *gate, "task.identifiability.max_ratio=0"))
     assert not warned["identified"] and "does not identify gravity" in caplog.text
@@ -422,6 +435,14 @@ def test_identifiability_gate_writes_its_sweep_and_warns_or_stops(trained, caplo
     assert check_identifiability(config(tmp, *gate, "task.identifiability.on_fail=off")) == {"skipped": True}
     with pytest.raises(ValueError, match="task.identifiability.on_fail='never': expected one of"):
         check_identifiability(config(tmp, *gate, "task.identifiability.on_fail=never"))
+
+
+def test_a_type_whose_true_label_loses_in_most_scenes_is_named():
+    from vgpl.tasks.identifiability import unpreferred_labels
+
+    shares = {"rigidness_truth_preferred/cube": 0.30, "rigidness_truth_preferred/fluid": 0.95}  # RigidFall seed 1's prior: 0.30 (session 73)
+    assert unpreferred_labels(shares, ["cube", "fluid"]) == {"cube": 0.30}
+    assert unpreferred_labels({"rigidness_truth_preferred/cube": 0.5}, ["cube"]) == {}  # half the scenes: not a warning
 
 
 def test_multi_step_training_logs_its_rollout_loss_beside_the_one_step_one(trained):
