@@ -110,6 +110,14 @@ def check_rigidness_grid(values: int) -> None:
         raise ValueError(f"task.rigidness_grid={values}: expected 0 (skip) or at least 2 values from 0 to 1")
 
 
+def rigidness_grid_option(value) -> int:
+    """A config's rigidness grid (None or 0: no sweep), refused by ``check_rigidness_grid`` before any rollout when it cannot sweep."""
+    values = int(value or 0)
+    if values > 0:
+        check_rigidness_grid(values)
+    return values
+
+
 def rigidness_metrics(model: DynamicsPrior, scene: Scene, test: Rollouts, cfg: DictConfig, start_frame: int, values: int,
                       max_rollouts: int | None) -> dict:
     """``rigidness_sweep`` of each object type's Q over ``values`` evenly spaced values in [0, 1], over
@@ -211,9 +219,7 @@ def check_identifiability(cfg: DictConfig) -> dict:
         raise ValueError(f"task.identifiability.on_fail={spec.on_fail!r}: expected one of {list(ON_FAIL)}")
     if spec.on_fail == "off":
         return {"skipped": True}
-    q_grid = int(spec.get("rigidness_grid", 0))
-    if q_grid > 0:
-        check_rigidness_grid(q_grid)
+    q_grid = rigidness_grid_option(spec.get("rigidness_grid"))
     scene = scene_of(cfg)
     path = stage_checkpoint(cfg, "dynamics")
     model, _ = load_stage(path, DynamicsPrior, env=scene.name, n_particles=scene.n_particles)

@@ -20,7 +20,7 @@ from vgpl.eval.preview import write_gif
 from vgpl.eval.tensorboard_media import add_gif, rollout_video
 from vgpl.models.dynamics_prior import DynamicsPrior
 from vgpl.sim.scene import Scene
-from vgpl.tasks.identifiability import check_rigidness_grid, check_sweep_rigidness, check_window_starts, gradient_agreement_by_start, rigidness_metrics, sweep_metrics
+from vgpl.tasks.identifiability import check_sweep_rigidness, check_window_starts, gradient_agreement_by_start, rigidness_grid_option, rigidness_metrics, sweep_metrics
 from vgpl.tasks.stage import fit, setup_run, stopping
 
 log = logging.getLogger(__name__)
@@ -112,9 +112,7 @@ def evaluate_dynamics(cfg: DictConfig) -> dict:
     starts = list(cfg.task.get("gradient_starts") or [])
     if starts:  # refused before an hour of rollouts, not after
         check_window_starts(starts, test.positions.shape[1], cfg.model.inference.observed, cfg.model.inference.net.horizon)
-    q_grid = int(cfg.task.get("rigidness_grid", 0))
-    if q_grid > 0:  # so is a grid without both labels
-        check_rigidness_grid(q_grid)
+    q_grid = rigidness_grid_option(cfg.task.get("rigidness_grid"))  # so is a grid without both labels
     sweep_rigidness = check_sweep_rigidness(cfg.task.get("param_sweep_rigidness"))
     start = window_start(cfg.task.get("start_frame"), train_cfg.env.get("start_frame", 0), test.positions.shape[1])
     metrics, pred, truth = evaluate_rollouts(model, scene, test, cfg.eval.observed, cfg.eval.n_steps, cfg.eval.get("max_rollouts"), start)
