@@ -249,5 +249,6 @@ def check_identifiability(cfg: DictConfig) -> dict:
         detail = "; ".join(f"{t}: the true label rolls better in {100 * share:.0f}% of scenes" for t, share in wrong.items())
         log.warning(f"{path}: the prior's rollout loss does not prefer the true rigidness ({detail}). The inference module learns Q "
                     "only through that loss, so Q will read the blend it prefers, and VGPL w/o rigidness can match or beat VGPL at "
-                    "T+20 (RigidFall, docs/experiments.md, session 73). A prior trained longer is the fix")
+                    "T+20. More prior time alone did not fix it on RigidFall: its noise-free finish turned the prior to the free label "
+                    "(docs/experiments.md, session 73)")
     return result
