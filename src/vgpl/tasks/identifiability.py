@@ -245,10 +245,11 @@ def check_identifiability(cfg: DictConfig) -> dict:
             raise IdentifiabilityError(message)
         log.warning(message)
     wrong = unpreferred_labels(metrics, types)
-    if wrong:  # a warning only: Q still trains, but to the blend this loss prefers (docs/experiments.md, session 73)
+    if wrong:  # a warning only: Q still trains, but to the blend this loss prefers (docs/experiments.md, sessions 73-74)
         detail = "; ".join(f"{t}: the true label rolls better in {100 * share:.0f}% of scenes" for t, share in wrong.items())
         log.warning(f"{path}: the prior's rollout loss does not prefer the true rigidness ({detail}). The inference module learns Q "
                     "only through that loss, so Q will read the blend it prefers, and VGPL w/o rigidness can match or beat VGPL at "
-                    "T+20. More prior time alone did not fix it on RigidFall: its noise-free finish turned the prior to the free label "
-                    "(docs/experiments.md, session 73)")
+                    "T+20. On RigidFall this preference swung from 0% to 100% of scenes between priors of one seed, with the noise "
+                    "phase and the step count (docs/experiments.md, sessions 73-74): resume or retrain the prior and sweep it again "
+                    "(task=evaluate_dynamics task.rigidness_grid=5)")
     return result
