@@ -249,7 +249,8 @@ def check_identifiability(cfg: DictConfig) -> dict:
         detail = "; ".join(f"{t}: the true label rolls better in {100 * share:.0f}% of scenes" for t, share in wrong.items())
         log.warning(f"{path}: the prior's rollout loss does not prefer the true rigidness ({detail}). The inference module learns Q "
                     "only through that loss, so Q will read the blend it prefers, and VGPL w/o rigidness can match or beat VGPL at "
-                    "T+20. On RigidFall this preference swung from 0% to 100% of scenes between priors of one seed, with the noise "
-                    "phase and the step count (docs/experiments.md, sessions 73-74): resume or retrain the prior and sweep it again "
-                    "(task=evaluate_dynamics task.rigidness_grid=5)")
+                    "T+20. On RigidFall the raw weights' preference swung from 0% to 100% of scenes between checkpoints of one run at "
+                    "a constant learning rate, and their moving average preferred the true label in 100% (docs/experiments.md, "
+                    "sessions 73-74): train the prior with model.dynamics.ema.decay=0.999 (RigidFall's standard preset does) and "
+                    "sweep it again (task=evaluate_dynamics task.rigidness_grid=5)")
     return result
