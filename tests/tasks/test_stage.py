@@ -18,7 +18,9 @@ from vgpl.hardware import fast_precision
 from vgpl.models.step_learning_rate import annealed_fraction
 from vgpl.tasks import TASKS, check_resolvable, run_task
 from vgpl.tasks.pipeline import training_summary
-from vgpl.tasks.stage import LastValidation, checkpointing, snapshots, stopping, trainer_kwargs, validate_final
+from vgpl.tasks.stage import (LastValidation, checkpointing, max_time_key, snapshots, spent_time_warning, stopping, trainer_kwargs,
+                              training_time_spent, validate_final)
+from vgpl.tasks.stage import fit as stage_fit
 
 
 class SlowRegression(L.LightningModule):
@@ -296,3 +298,42 @@ def test_a_task_whose_config_cannot_resolve_fails_before_it_reads_or_writes_anyt
         for env, preset, task in runs:
             check_resolvable(compose("config", overrides=[f"env={env}", f"experiment={preset}", f"task={task}",
                                                           f"paths.output_dir={tmp_path}/out"]))
+
+
+def test_a_resume_whose_checkpoint_already_spent_max_time_is_warned_with_the_total_to_pass(tmp_path):
+    """Lightning's Timer restores the time already spent, so max_time bounds the total over resumed
+    runs: a resume under a max_time the checkpoint has spent takes no step (session 76)."""
+    cut = fit(0.25, max_steps=1000, max_epochs=-1, max_time={"seconds": 1})
+    cut.save_checkpoint(tmp_path / "cut.ckpt")
+    spent = training_time_spent(tmp_path / "cut.ckpt")
+    assert 1.0 <= spent < 2.0
+    again = fit(0.25, str(tmp_path / "cut.ckpt"), max_steps=1000, max_epochs=-1, max_time={"seconds": 1})
+    assert again.global_step == cut.global_step  # the fact the warning is about
+    message = spent_time_warning(tmp_path / "cut.ckpt", "00:00:00:01", "model.inference.trainer.max_time")
+    assert message.startswith(f"{tmp_path / 'cut.ckpt'}: holds 00:00:00:0")
+    assert "model.inference.trainer.max_time=00:00:00:01" in message and "model.inference.trainer.max_time=00:01:00:0" in message
+    assert spent_time_warning(tmp_path / "cut.ckpt", "00:00:01:00") is None  # a minute in total: 59 s left to train
+    assert spent_time_warning(tmp_path / "cut.ckpt", None) is None  # no clock, no limit
+    fit(0.0, max_steps=3).save_checkpoint(tmp_path / "unclocked.ckpt")  # max_time=null: Lightning adds no Timer
+    assert training_time_spent(tmp_path / "unclocked.ckpt") is None
+    assert spent_time_warning(tmp_path / "unclocked.ckpt", "00:00:00:01") is None
+    (tmp_path / "text.ckpt").write_text("not a checkpoint")
+    assert training_time_spent(tmp_path / "text.ckpt") is None  # left to Lightning's own error on resume
+
+
+def test_the_stages_fit_warns_before_resuming_past_its_max_time_and_names_the_option(tmp_path, caplog):
+    with initialize_config_dir(str(REPO / "conf"), version_base="1.3"):
+        cfg = compose("config", overrides=[f"paths.ckpt_dir={tmp_path}", f"paths.output_dir={tmp_path}", "model.dynamics.trainer.max_time=00:00:00:01",
+                                           "model.dynamics.trainer.max_steps=1000", "trainer.max_epochs=-1",
+                                           "model.dynamics.trainer.val_check_interval=2", "trainer.limit_val_batches=1"])
+    data = L.LightningDataModule.from_datasets(TensorDataset(torch.randn(64, 2), torch.randn(64, 1)),
+                                               TensorDataset(torch.randn(8, 2), torch.randn(8, 1)), batch_size=4)
+    first, _ = stage_fit(cfg, "toy", cfg.model.dynamics, ValidatedRegression(0.25), data)
+    assert stopping(first)["stopped_by"] == "max_time"
+    assert training_time_spent(tmp_path / "toy" / "last.ckpt") >= 1.0
+    assert max_time_key(cfg, cfg.model.dynamics) == "model.dynamics.trainer.max_time"  # the stage's own, not the group's
+    cfg.ckpt_path = "last"
+    with caplog.at_level("WARNING"):
+        resumed, _ = stage_fit(cfg, "toy", cfg.model.dynamics, ValidatedRegression(0.25), data)
+    assert resumed.global_step == first.global_step
+    assert f"{tmp_path / 'toy' / 'last.ckpt'}: holds" in caplog.text and "pass model.dynamics.trainer.max_time=00:01:00:0" in caplog.text

@@ -4,6 +4,7 @@ Lightning Trainer (TensorBoard logger, ModelCheckpoint with last.ckpt) and resum
 from __future__ import annotations
 
 import logging
+import pickle
 from pathlib import Path
 
 import lightning as L
@@ -13,6 +14,7 @@ from lightning.pytorch.loggers import TensorBoardLogger
 from omegaconf import DictConfig, OmegaConf
 
 from vgpl.hardware import precision_warning
+from vgpl.tasks.time_budget import seconds
 from vgpl.weight_averaging import ExponentialMovingAverage
 
 log = logging.getLogger(__name__)
@@ -84,6 +86,11 @@ def fit(cfg: DictConfig, stage: str, stage_cfg: DictConfig, model: L.LightningMo
     if ckpt_path == "last" and not (folder / "last.ckpt").is_file():
         log.info("%s: no last.ckpt yet, starting from scratch", folder)
         ckpt_path = None
+    if ckpt_path is not None:
+        warning = spent_time_warning(Path(folder / "last.ckpt" if ckpt_path == "last" else ckpt_path),
+                                     kwargs.get("max_time"), max_time_key(cfg, stage_cfg))
+        if warning:
+            log.warning(warning)
     trainer.fit(model, datamodule, ckpt_path=ckpt_path)
     trainer.save_checkpoint(folder / "last.ckpt")  # also when validation never ran (tiny runs)
     ended = stopping(trainer)
@@ -91,6 +98,56 @@ def fit(cfg: DictConfig, stage: str, stage_cfg: DictConfig, model: L.LightningMo
         log.warning("%s: trainer.max_time=%s stopped training after %d of %d steps; its results depend on this machine's speed",
                     stage, kwargs.get("max_time"), ended["steps"], ended["max_steps"])
     return trainer, folder / "last.ckpt"
+
+
+def training_time_spent(checkpoint: Path) -> float | None:
+    """The training seconds Lightning's ``Timer`` saved in ``checkpoint`` (the total over every run
+    resumed into it), or None when it holds none (a run with ``max_time=null`` has no Timer) or is
+    not a readable checkpoint (Lightning's own resume then says so)."""
+    try:
+        state = torch.load(checkpoint, map_location="cpu", weights_only=False, mmap=True)
+    except (RuntimeError, EOFError, ValueError, pickle.UnpicklingError):
+        return None
+    for callback_state in (state.get("callbacks") or {}).values():
+        if isinstance(callback_state, dict) and "time_elapsed" in callback_state:
+            return float(callback_state["time_elapsed"].get("train", 0.0))
+    return None
+
+
+def spent_time_warning(checkpoint: Path, max_time, key: str = "trainer.max_time") -> str | None:
+    """A warning when resuming from ``checkpoint`` under ``max_time`` would stop before the first step.
+
+    Lightning's Timer restores the training time already spent, so ``max_time`` bounds the total
+    over every resumed run, not the new one: a resume with ``max_time=00:00:12:00`` after 60 min
+    stopped at once, 0 steps (session 76). That is also what a finished stage of a resumed pipeline
+    does, hence a warning and not an error. ``key`` names the option in the message."""
+    limit = seconds(max_time, key)
+    if limit is None or not checkpoint.is_file():
+        return None
+    spent = training_time_spent(checkpoint)
+    if spent is None or spent < limit:
+        return None
+    return (f"{checkpoint}: holds {duration(spent)} of training already, at or past {key}={duration(limit)}, which counts "
+            f"every run resumed from it (Lightning's Timer), so this run stops before its first step; to train for another "
+            f"hour pass {key}={duration(spent + 3600)} (the time spent plus the new)")
+
+
+def max_time_key(cfg: DictConfig, stage_cfg: DictConfig) -> str:
+    """The option a stage's max_time comes from: ``model.<name>.trainer.max_time`` when the stage
+    sets its own, else the ``trainer`` group's ``trainer.max_time``."""
+    if "max_time" in (stage_cfg.get("trainer") or {}):
+        for name, node in (cfg.get("model") or {}).items():
+            if node is stage_cfg:
+                return f"model.{name}.trainer.max_time"
+    return "trainer.max_time"
+
+
+def duration(total_s: float) -> str:
+    """Seconds as trainer.max_time's ``DD:HH:MM:SS``."""
+    minutes, s = divmod(round(total_s), 60)
+    hours, m = divmod(minutes, 60)
+    days, h = divmod(hours, 24)
+    return f"{days:02d}:{h:02d}:{m:02d}:{s:02d}"
 
 
 def check_batch_size(stage: str, stage_cfg: DictConfig) -> None:
