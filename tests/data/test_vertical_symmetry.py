@@ -38,19 +38,27 @@ def test_random_turns_keep_every_distance_and_height_and_differ_per_scene():
 def test_rigid_fall_simulated_turned_is_the_simulation_turned():
     """RigidFall.vertical_symmetry is a fact of its physics: a turned initial state falls as the
     turned fall to float precision, and after the cubes land and tumble it differs from the turned
-    video only as much as a 1e-6 m nudge of the same state does (contacts amplify any rounding)."""
+    video only as much as 1e-6 m nudges of the same state do (contacts amplify any rounding).
+
+    The nudges are four, not one: which way a contact resolves flips on rounding, so one nudge is
+    one draw of the chaos. On an Intel Xeon with AVX-512 (session 78) seed 3's turned run ended
+    8.4 cm off, one nudge 4.3 mm and another 8.4 cm, the same flip (on the AMD machines before,
+    the one nudge had flipped too)."""
     scene = RigidFall(n_steps=60)
+    n_nudges = 4
     runs = []
     for seed in (3, 4):
         sample = scene.sample(np.random.default_rng(seed), params=np.array([-11.0]))
         turned = about_vertical(torch.as_tensor(sample.positions)[None], 1.0)[0].numpy()
-        nudged = sample.positions + np.random.default_rng(0).normal(0, 1e-6, sample.positions.shape).astype(np.float32)
-        runs += [sample, RolloutSample(turned, sample.params, sample.actions), RolloutSample(nudged, sample.params, sample.actions)]
+        runs += [sample, RolloutSample(turned, sample.params, sample.actions)]
+        for k in range(n_nudges):
+            nudged = sample.positions + np.random.default_rng(k).normal(0, 1e-6, sample.positions.shape).astype(np.float32)
+            runs.append(RolloutSample(nudged, sample.params, sample.actions))
     videos = scene.simulate(runs).positions
-    for original, turned, nudged in videos.split(3):
+    for original, turned, *nudged in videos.split(2 + n_nudges):
         assert original[-1, :, 1].min() < 0.05  # landed
         off_turned = (about_vertical(original[None], 1.0)[0] - turned).norm(dim=-1).amax(-1)  # [T]
-        off_nudged = (original - nudged).norm(dim=-1).amax(-1)
+        off_nudged = torch.stack([(original - n).norm(dim=-1).amax(-1) for n in nudged])  # [nudges, T]
         assert off_turned[:12].max() < 1e-4  # the fall, before the first contact
-        assert off_turned[-1] < 3 * off_nudged[-1]
+        assert off_turned[-1] < 3 * off_nudged[:, -1].max()
     assert RigidFall.vertical_symmetry and not FluidCube.vertical_symmetry and not MassRope.vertical_symmetry
