@@ -18,8 +18,8 @@ from vgpl.hardware import fast_precision
 from vgpl.models.step_learning_rate import annealed_fraction
 from vgpl.tasks import TASKS, check_resolvable, run_task
 from vgpl.tasks.pipeline import training_summary
-from vgpl.tasks.stage import (LastValidation, checkpointing, max_time_key, snapshots, spent_time_warning, stopping, trainer_kwargs,
-                              training_time_spent, validate_final)
+from vgpl.tasks.stage import (LastValidation, SpentTimeWarning, checkpointing, max_time_key, snapshots, spent_time_warning, stopping,
+                              trainer_kwargs, validate_final)
 from vgpl.tasks.stage import fit as stage_fit
 
 
@@ -300,25 +300,39 @@ def test_a_task_whose_config_cannot_resolve_fails_before_it_reads_or_writes_anyt
                                                           f"paths.output_dir={tmp_path}/out"]))
 
 
-def test_a_resume_whose_checkpoint_already_spent_max_time_is_warned_with_the_total_to_pass(tmp_path):
+def test_a_resume_whose_checkpoint_already_spent_max_time_is_warned_with_the_total_to_pass(tmp_path, caplog):
     """Lightning's Timer restores the time already spent, so max_time bounds the total over resumed
-    runs: a resume under a max_time the checkpoint has spent takes no step (session 76)."""
+    runs: a resume under a max_time the checkpoint has spent takes no step (session 76). The warning
+    reads the restored Timer at fit start."""
     cut = fit(0.25, max_steps=1000, max_epochs=-1, max_time={"seconds": 1})
     cut.save_checkpoint(tmp_path / "cut.ckpt")
-    spent = training_time_spent(tmp_path / "cut.ckpt")
-    assert 1.0 <= spent < 2.0
-    again = fit(0.25, str(tmp_path / "cut.ckpt"), max_steps=1000, max_epochs=-1, max_time={"seconds": 1})
+    with caplog.at_level("WARNING", logger="vgpl.tasks.stage"):
+        again = fit(0.25, str(tmp_path / "cut.ckpt"), max_steps=1000, max_epochs=-1, max_time={"seconds": 1},
+                    callbacks=[SpentTimeWarning("model.inference.trainer.max_time")])
     assert again.global_step == cut.global_step  # the fact the warning is about
-    message = spent_time_warning(tmp_path / "cut.ckpt", "00:00:00:01", "model.inference.trainer.max_time")
-    assert message.startswith(f"{tmp_path / 'cut.ckpt'}: holds 00:00:00:0")
+    [message] = [r.getMessage() for r in caplog.records if r.name == "vgpl.tasks.stage"]
+    assert message.startswith(f"{tmp_path / 'cut.ckpt'}: holds 00:00:00:0")  # 1-2 s spent
     assert "model.inference.trainer.max_time=00:00:00:01" in message and "model.inference.trainer.max_time=00:01:00:0" in message
-    assert spent_time_warning(tmp_path / "cut.ckpt", "00:00:01:00") is None  # a minute in total: 59 s left to train
-    assert spent_time_warning(tmp_path / "cut.ckpt", None) is None  # no clock, no limit
-    fit(0.0, max_steps=3).save_checkpoint(tmp_path / "unclocked.ckpt")  # max_time=null: Lightning adds no Timer
-    assert training_time_spent(tmp_path / "unclocked.ckpt") is None
-    assert spent_time_warning(tmp_path / "unclocked.ckpt", "00:00:00:01") is None
-    (tmp_path / "text.ckpt").write_text("not a checkpoint")
-    assert training_time_spent(tmp_path / "text.ckpt") is None  # left to Lightning's own error on resume
+    caplog.clear()
+    with caplog.at_level("WARNING", logger="vgpl.tasks.stage"):
+        longer = fit(0.0, str(tmp_path / "cut.ckpt"), max_steps=cut.global_step + 2, max_epochs=-1, max_time={"minutes": 1},
+                     callbacks=[SpentTimeWarning()])  # a minute in total: 58 s left to train
+        fit(0.0, max_steps=2, max_time={"seconds": 1}, callbacks=[SpentTimeWarning()])  # not a resume
+        fit(0.0, str(tmp_path / "cut.ckpt"), max_steps=cut.global_step + 2, max_epochs=-1,
+            callbacks=[SpentTimeWarning()])  # no clock, no limit
+        fit(0.0, max_steps=3).save_checkpoint(tmp_path / "unclocked.ckpt")  # max_time=null: Lightning adds no Timer
+        fit(0.0, str(tmp_path / "unclocked.ckpt"), max_steps=5, max_time={"seconds": 1}, callbacks=[SpentTimeWarning()])
+    assert longer.global_step == cut.global_step + 2
+    assert not [r for r in caplog.records if r.name == "vgpl.tasks.stage"]
+
+
+def test_the_spent_time_warning_is_for_a_resumed_checkpoint_at_or_past_its_limit():
+    message = spent_time_warning("last.ckpt", 3600.0, 3600.0, "model.dynamics.trainer.max_time")
+    assert message.startswith("last.ckpt: holds 00:01:00:00 of training already, at or past model.dynamics.trainer.max_time=00:01:00:00")
+    assert message.endswith("pass model.dynamics.trainer.max_time=00:02:00:00 (the time spent plus the new)")
+    assert spent_time_warning("last.ckpt", 3599.0, 3600.0) is None  # a second left
+    assert spent_time_warning(None, 3600.0, 3600.0) is None  # a fresh fit
+    assert spent_time_warning("last.ckpt", 3600.0, None) is None  # no max_time
 
 
 def test_the_stages_fit_warns_before_resuming_past_its_max_time_and_names_the_option(tmp_path, caplog):
@@ -330,7 +344,6 @@ def test_the_stages_fit_warns_before_resuming_past_its_max_time_and_names_the_op
                                                TensorDataset(torch.randn(8, 2), torch.randn(8, 1)), batch_size=4)
     first, _ = stage_fit(cfg, "toy", cfg.model.dynamics, ValidatedRegression(0.25), data)
     assert stopping(first)["stopped_by"] == "max_time"
-    assert training_time_spent(tmp_path / "toy" / "last.ckpt") >= 1.0
     assert max_time_key(cfg, cfg.model.dynamics) == "model.dynamics.trainer.max_time"  # the stage's own, not the group's
     cfg.ckpt_path = "last"
     with caplog.at_level("WARNING"):

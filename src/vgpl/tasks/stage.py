@@ -4,7 +4,6 @@ Lightning Trainer (TensorBoard logger, ModelCheckpoint with last.ckpt) and resum
 from __future__ import annotations
 
 import logging
-import pickle
 from pathlib import Path
 
 import lightning as L
@@ -14,7 +13,7 @@ from lightning.pytorch.loggers import TensorBoardLogger
 from omegaconf import DictConfig, OmegaConf
 
 from vgpl.hardware import precision_warning
-from vgpl.tasks.time_budget import seconds
+from vgpl.models.step_learning_rate import training_clock
 from vgpl.weight_averaging import ExponentialMovingAverage
 
 log = logging.getLogger(__name__)
@@ -67,7 +66,7 @@ def fit(cfg: DictConfig, stage: str, stage_cfg: DictConfig, model: L.LightningMo
     saved["stage_class"] = f"{type(model).__module__}.{type(model).__name__}"
     OmegaConf.save(OmegaConf.create(saved), folder / "config.yaml")
     kwargs = trainer_kwargs(cfg, stage_cfg)
-    callbacks = [*checkpointing(folder, monitor), LastValidation()]
+    callbacks = [*checkpointing(folder, monitor), LastValidation(), SpentTimeWarning(max_time_key(cfg, stage_cfg))]
     if stage_cfg.get("snapshot_every_n_steps") is not None:
         callbacks.append(snapshots(folder, int(stage_cfg.snapshot_every_n_steps)))
     ema = stage_cfg.get("ema") or {}
@@ -86,11 +85,6 @@ def fit(cfg: DictConfig, stage: str, stage_cfg: DictConfig, model: L.LightningMo
     if ckpt_path == "last" and not (folder / "last.ckpt").is_file():
         log.info("%s: no last.ckpt yet, starting from scratch", folder)
         ckpt_path = None
-    if ckpt_path is not None:
-        warning = spent_time_warning(Path(folder / "last.ckpt" if ckpt_path == "last" else ckpt_path),
-                                     kwargs.get("max_time"), max_time_key(cfg, stage_cfg))
-        if warning:
-            log.warning(warning)
     trainer.fit(model, datamodule, ckpt_path=ckpt_path)
     trainer.save_checkpoint(folder / "last.ckpt")  # also when validation never ran (tiny runs)
     ended = stopping(trainer)
@@ -100,32 +94,31 @@ def fit(cfg: DictConfig, stage: str, stage_cfg: DictConfig, model: L.LightningMo
     return trainer, folder / "last.ckpt"
 
 
-def training_time_spent(checkpoint: Path) -> float | None:
-    """The training seconds Lightning's ``Timer`` saved in ``checkpoint`` (the total over every run
-    resumed into it), or None when it holds none (a run with ``max_time=null`` has no Timer) or is
-    not a readable checkpoint (Lightning's own resume then says so)."""
-    try:
-        state = torch.load(checkpoint, map_location="cpu", weights_only=False, mmap=True)
-    except (RuntimeError, EOFError, ValueError, pickle.UnpicklingError):
-        return None
-    for callback_state in (state.get("callbacks") or {}).values():
-        if isinstance(callback_state, dict) and "time_elapsed" in callback_state:
-            return float(callback_state["time_elapsed"].get("train", 0.0))
-    return None
+class SpentTimeWarning(Callback):
+    """Warns at fit start when the run resumed from a checkpoint whose training time already reaches
+    ``max_time`` (``key`` names the option in the message).
+
+    Lightning's Timer restores the training time spent before ``on_fit_start``, so ``max_time``
+    bounds the total over every resumed run, not the new one: a resume with ``max_time=00:00:12:00``
+    after 60 min stopped at once, 0 steps (session 76). That is also what a finished stage of a
+    resumed pipeline does, hence a warning and not an error. The Timer's own numbers are read
+    (``training_clock``), not the checkpoint a second time."""
+
+    def __init__(self, key: str = "trainer.max_time") -> None:
+        self.key = key
+
+    def on_fit_start(self, trainer, pl_module) -> None:
+        spent, limit = training_clock(trainer)
+        warning = spent_time_warning(trainer.ckpt_path, spent, limit, self.key)
+        if warning:
+            log.warning(warning)
 
 
-def spent_time_warning(checkpoint: Path, max_time, key: str = "trainer.max_time") -> str | None:
-    """A warning when resuming from ``checkpoint`` under ``max_time`` would stop before the first step.
-
-    Lightning's Timer restores the training time already spent, so ``max_time`` bounds the total
-    over every resumed run, not the new one: a resume with ``max_time=00:00:12:00`` after 60 min
-    stopped at once, 0 steps (session 76). That is also what a finished stage of a resumed pipeline
-    does, hence a warning and not an error. ``key`` names the option in the message."""
-    limit = seconds(max_time, key)
-    if limit is None or not checkpoint.is_file():
-        return None
-    spent = training_time_spent(checkpoint)
-    if spent is None or spent < limit:
+def spent_time_warning(checkpoint: str | Path | None, spent: float | None, limit: float | None,
+                       key: str = "trainer.max_time") -> str | None:
+    """The warning for a resume from ``checkpoint`` that has spent ``spent`` of ``limit`` training
+    seconds, or None when it has time left (or there is no checkpoint or no clock)."""
+    if checkpoint is None or spent is None or limit is None or spent < limit:
         return None
     return (f"{checkpoint}: holds {duration(spent)} of training already, at or past {key}={duration(limit)}, which counts "
             f"every run resumed from it (Lightning's Timer), so this run stops before its first step; to train for another "
