@@ -28,6 +28,10 @@ TINY = [
     "model.visual.net.channels=[8,16,16,32]", "model.visual.net.hidden=256", "model.visual.trainer.max_steps=300", "model.visual.trainer.val_check_interval=150",
     "model.dynamics.trainer.max_time=null", "model.visual.trainer.max_time=null", "model.inference.trainer.max_time=null",  # steps, not the clock
     "model.inference.batch_size=4", "model.inference.net.width=32", "model.inference.window_stride=1", "model.inference.net.max_neighbors=12", "model.inference.trainer.max_steps=600", "model.inference.trainer.val_check_interval=300",
+    # refinement's direct L1 weighted as the quick preset weights P's (param_weight 10): at the default 1 the 600 steps left
+    # dX near zero and the refined MSE x 1e4 a coin flip about the proposals' 13.98 (12.92 to 14.07 in six draws, two above);
+    # at 10, 12.78 to 12.94 in four (session 79, README: Tests)
+    "model.inference.net.refine_weight=10",
     "model.densephysnet.net.channels=8", "model.densephysnet.net.latent=8", "model.densephysnet.trainer.max_steps=100",
     "model.densephysnet.trainer.val_check_interval=50", "model.densephysnet.window_stride=5",
     "eval.n_steps=10", "eval.max_observed=12",
@@ -73,7 +77,7 @@ def test_inferred_parameters_beat_the_range_midpoint(tiny):
     breakdown = full["breakdown@10"]
     assert breakdown["mse"] == pytest.approx(full["future_mse_x1e4@10"], rel=1e-5)
     assert sum(b["rollouts"] for b in breakdown["by_inferred_gravity"]) == sum(b["rollouts"] for b in breakdown["by_gravity"]) == len(rows)
-    assert full["refine_mse_x1e4_after"] < full["refine_mse_x1e4_before"]
+    assert full["refine_mse_x1e4_after"] < 0.97 * full["refine_mse_x1e4_before"]  # measured 7-9% lower in four draws (TINY)
     assert 0 < full["future_mse_x1e4@1"] < full["future_mse_x1e4@10"]
 
 
