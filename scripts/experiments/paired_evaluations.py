@@ -51,7 +51,8 @@ def main() -> None:
         pe, pf = paired_bootstrap(errors[0], e), paired_bootstrap(future[0], f)
         print(f"B {d}: parameter MAE {e.mean():.2f}% (std {e.std():.2f}), T+{k} {f.mean():.1f} (median {f.median():.1f})")
         print(f"  B - A: parameter MAE {pe['mean_diff']:+.2f} [{pe['low']:+.2f}, {pe['high']:+.2f}] pts, A lower on {pe['reference_lower_share']:.0%};"
-              f" T+{k} {pf['mean_diff']:+.1f} [{pf['low']:+.1f}, {pf['high']:+.1f}], A lower on {pf['reference_lower_share']:.0%}")
+              f" T+{k} {pf['mean_diff']:+.1f} [{pf['low']:+.1f}, {pf['high']:+.1f}], A lower on {pf['reference_lower_share']:.0%}"
+              f" (sign test p {pf['sign_p']:.2g})")
 
 
 if __name__ == "__main__":

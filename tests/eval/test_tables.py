@@ -6,7 +6,7 @@ import pytest
 import torch
 
 from vgpl.eval.metrics import midpoint_error_pct
-from vgpl.eval.paired import paired_bootstrap
+from vgpl.eval.paired import paired_bootstrap, sign_test_p
 from vgpl.eval.tables import MIDPOINT_ROW, PER_VIDEO, csv_text, paired_rows, paired_steps, param_rows, read_params_csv, report_markdown, table1_rows
 
 
@@ -96,6 +96,17 @@ def test_bootstrap_of_a_constant_gap_is_that_gap_and_of_noise_straddles_zero():
     assert straddle["low"] < 0 < straddle["high"] and straddle["reference_lower_share"] == 0.5
 
 
+def test_sign_test_is_the_exact_binomial_tail_with_ties_dropped():
+    assert sign_test_p(torch.ones(10)) == pytest.approx(2 / 2**10)
+    # 15 of 20 one way: 2 * (C(20,0) + ... + C(20,5)) / 2^20 = 2 * 21,700 / 1,048,576
+    assert sign_test_p(torch.tensor([1.0] * 15 + [-2.0] * 5)) == pytest.approx(2 * 21700 / 2**20)
+    assert sign_test_p(torch.tensor([1.0] * 15 + [-2.0] * 5 + [0.0] * 7)) == pytest.approx(2 * 21700 / 2**20)  # ties dropped
+    assert sign_test_p(torch.tensor([1.0, -1.0] * 5)) == 1.0 and sign_test_p(torch.zeros(4)) == 1.0
+    # a heavy tail moves the mean, not the sign test: 69 of 100 lower by 1, 31 higher by 10
+    diff = torch.tensor([1.0] * 69 + [-10.0] * 31)
+    assert diff.mean() < 0 and sign_test_p(diff) < 2e-4 and paired_bootstrap(-diff, torch.zeros(100))["sign_p"] == sign_test_p(diff)
+
+
 def test_paired_table_says_whether_vgpl_is_lower_on_the_same_videos():
     full = _with_videos("mass_rope", "full", [10.0, 20.0, 30.0, 40.0])
     records = [full,
@@ -105,11 +116,16 @@ def test_paired_table_says_whether_vgpl_is_lower_on_the_same_videos():
     assert paired_steps(records) == [20]
     header, rows = paired_rows(records, 20)
     by = {r[1]: dict(zip(header, r)) for r in rows}
-    assert by["VGPL w/o refinement"]["VGPL is"] == "lower" and by["VGPL w/o refinement"]["videos where VGPL is lower"] == "100%"
+    assert by["VGPL w/o refinement"]["VGPL is"] == "lower" and by["VGPL w/o refinement"]["videos where VGPL is lower (sign test p)"] == "100% (p 0.12)"  # 2 / 2^4
     assert by["VGPL w/o refinement"]["mean difference (ablation - VGPL) [95% bootstrap]"].startswith("+5.250 [")
     assert by["VGPL w/o parameter estimation"]["VGPL is"] == "not distinguishable"
     assert by["VGPL w/o rigidness"]["videos"] == "2" and by["VGPL w/o rigidness"]["VGPL T+20"] == "35.000"  # videos 902, 903
     assert by["VGPL w/o rigidness"]["VGPL is"] == "higher"
+    # a mean swung by one video's tail, while VGPL is lower on 19 of 20: the sign test says so
+    tail = [_with_videos("rigid_fall", "full", [10.0] * 19 + [400.0]), _with_videos("rigid_fall", "no_params", [12.0] * 19 + [200.0])]
+    header, rows = paired_rows(tail, 20)
+    assert dict(zip(header, rows[0]))["VGPL is"] == "not distinguishable in the mean; lower on most videos"
+    assert dict(zip(header, rows[0]))["videos where VGPL is lower (sign test p)"] == "95% (p < 1e-4)"  # 2 * 21 / 2^20 = 4.0e-5
     assert "## Is VGPL lower at T+20?" in report_markdown(records)
     assert "Is VGPL lower" not in report_markdown([_record("mass_rope", "full", 3.0)])  # older records: no section
 
