@@ -2,7 +2,7 @@
 
 For each checkpoint given, P for each split's videos (the test ones by default) from their exported proposals over the
 evaluation's window (``observed`` frames from the env's ``start_frame``), without the rollouts of
-task=evaluate (seconds, not minutes). Per parameter: the MAE and mean signed error as % of the
+task=evaluate (RigidFall on 2 CPU cores: about 40 s per 100 videos and checkpoint, session 81). Per parameter: the MAE and mean signed error as % of the
 range, the correlation r with the truth and the spread (std) of the normalised P against the
 truth's (~0.58 for a uniform draw). A constant predictor has r ~ 0 and a spread ~ 0.
 ``--split train test`` (session 40) sets the videos the module trained on beside the held-out ones:
