@@ -102,6 +102,7 @@ def test_sign_test_is_the_exact_binomial_tail_with_ties_dropped():
     assert sign_test_p(torch.tensor([1.0] * 15 + [-2.0] * 5)) == pytest.approx(2 * 21700 / 2**20)
     assert sign_test_p(torch.tensor([1.0] * 15 + [-2.0] * 5 + [0.0] * 7)) == pytest.approx(2 * 21700 / 2**20)  # ties dropped
     assert sign_test_p(torch.tensor([1.0, -1.0] * 5)) == 1.0 and sign_test_p(torch.zeros(4)) == 1.0
+    assert sign_test_p(torch.tensor([1.0] * 10 + [float("nan")] * 3)) == pytest.approx(2 / 2**10)  # NaN: no sign, dropped
     # a heavy tail moves the mean, not the sign test: 69 of 100 lower by 1, 31 higher by 10
     diff = torch.tensor([1.0] * 69 + [-10.0] * 31)
     assert diff.mean() < 0 and sign_test_p(diff) < 2e-4 and paired_bootstrap(-diff, torch.zeros(100))["sign_p"] == sign_test_p(diff)

@@ -13,11 +13,12 @@ import torch
 
 def sign_test_p(diff: torch.Tensor) -> float:
     """Two-sided exact sign test of paired differences [R]: the probability, if each nonzero
-    difference were a fair coin's sign, of a split at least as uneven as this one (ties dropped)."""
-    positive, n = int((diff > 0).sum()), int((diff != 0).sum())
+    difference were a fair coin's sign, of a split at least as uneven as this one (ties and NaNs,
+    e.g. two rollouts diverged to inf, dropped)."""
+    positive, negative = int((diff > 0).sum()), int((diff < 0).sum())
+    n, fewer = positive + negative, min(positive, negative)
     if n == 0:
         return 1.0
-    fewer = min(positive, n - positive)
     return min(1.0, 2 * sum(math.comb(n, i) for i in range(fewer + 1)) / 2**n)
 
 
