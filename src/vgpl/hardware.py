@@ -3,7 +3,9 @@
 On a CPU without ``avx512_bf16`` or ``amx_bf16`` (e.g. Intel Cascade Lake), PyTorch emulates
 bf16 and ``trainer.precision=bf16-mixed`` is slower than fp32: 245 against 119 ms a RigidFall
 dynamics training step, measured (README: Speed). On the AMD EPYC of the earlier measurements,
-which has it, bf16-mixed was 2-2.6x faster than fp32 (benchmarks/results_dynamics.jsonl).
+which has it, bf16-mixed was 2-2.6x faster than fp32 (benchmarks/results_dynamics.jsonl). The flags
+promise native bf16, not speed: on an Intel Xeon model 207 (avx512_bf16, AMX hidden) bf16 was 10% slower
+than fp32 for the visual prior and within 13% either way for the dynamics prior (README: Speed).
 """
 
 from __future__ import annotations
