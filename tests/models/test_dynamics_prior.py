@@ -122,6 +122,38 @@ def test_momentum_projection_recovers_a_rigid_step_and_moves_a_body_pushed_at_on
     assert float((rot_fit[:, 0] - torch.eye(3)).abs().max()) > 1e-4
 
 
+def test_without_a_rigid_head_the_prior_ignores_rigidness_and_moves_every_particle_freely():
+    """rigid_head="none" (the paper's w/o-rigidness prior): Q changes nothing, and no rigid weights exist."""
+    scene, tr, g, q, planes, kin = inputs("rigid_fall", steps=10)
+    model = model_for(scene, rigid_head="none")
+    assert model.rigid_head is None
+    rigid, free = (model(tr.positions[:, :4], g, r, tr.params, planes[:, :4], kin) for r in (q, torch.zeros_like(q)))
+    torch.testing.assert_close(rigid, free, rtol=0, atol=0)
+    constrained = model_for(scene, rigid_head="pooled")
+    moved = constrained(tr.positions[:, :4], g, q, tr.params, planes[:, :4], kin) - constrained(tr.positions[:, :4], g, torch.zeros_like(q), tr.params, planes[:, :4], kin)
+    assert moved.abs().max() > 1e-3  # where a rigid head exists, Q does move the prediction
+
+
+def test_history_noise_is_a_random_walk_or_independent_per_frame():
+    """random_walk: the first frame exact, the last frame's std the given std; independent: every
+    frame perturbed with that std (100k samples: the std to 2%)."""
+    from vgpl.models.dynamics_prior import add_history_noise
+
+    torch.manual_seed(0)
+    history, movable, std = torch.zeros(25000, 4, 4, 3), torch.tensor([True, True, True, False]), torch.tensor([0.1, 0.2, 0.3])
+    walk = add_history_noise(history, std, movable, "random_walk")
+    assert walk[:, 0].abs().max() == 0 and walk[:, :, 3].abs().max() == 0
+    torch.testing.assert_close(walk[:, -1, :3].reshape(-1, 3).std(0), std, rtol=0.02, atol=0)
+    independent = add_history_noise(history, std, movable, "independent")
+    assert independent[:, :, 3].abs().max() == 0
+    for frame in range(4):
+        torch.testing.assert_close(independent[:, frame, :3].reshape(-1, 3).std(0), std, rtol=0.02, atol=0)
+    corr = torch.corrcoef(torch.stack([independent[:, 0, 0, 0], independent[:, 3, 0, 0]]))[0, 1]
+    assert abs(corr) < 0.03  # frames drawn apart (a walk's frames 1 and 3 correlate at 0.58)
+    with pytest.raises(ValueError, match="model.dynamics.net.history_noise"):
+        DynamicsPrior([-15.0], [-5.0], 3, radius=0.08, history_noise="pink")
+
+
 def test_rigid_head_option_is_checked():
     with pytest.raises(ValueError, match="model.dynamics.net.rigid_head"):
         DynamicsPrior([-15.0], [-5.0], 3, radius=0.08, rigid_head="mean")

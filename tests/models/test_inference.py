@@ -45,6 +45,7 @@ def _batch(b=2, t=8, n=24):
     return {
         "proposals": torch.rand(b, t, n, 3), "logits": torch.randn(b, t, n, 2), "positions": torch.rand(b, t + 2, n, 3),
         "planes": torch.zeros(b, t + 2, 0, 4), "params": torch.tensor([[-9.0], [-12.0]]), "kinematic": torch.zeros(b, n, dtype=torch.bool),
+        "rigid": torch.tensor([[1.0, 0.0]] * b), "grouping": torch.nn.functional.one_hot(torch.arange(n) % 2, 2).float().expand(b, n, 2),
     }
 
 
@@ -95,6 +96,42 @@ def test_both_starts_rolled_as_one_batch_give_each_start_alone():
         alone = rollout(dyn, torch.cat([start, target], 1), out["grouping"], out["rigidness"], out["params"], batch["planes"],
                         batch["kinematic"][0], t - h + inf.hparams.horizon)
         torch.testing.assert_close(losses[name].detach(), ((alone - target) / dyn.disp_std).abs().mean(), rtol=1e-5, atol=1e-7)
+
+
+def test_the_paper_scheme_rolls_each_network_with_the_true_values_of_the_others_outputs():
+    """training_scheme="paper": the refinement-and-rigidness network's rollout (refined start) takes
+    the true P and reaches neither the parameter head nor its encoder; the parameter network's
+    rollout starts at the true frames with the true G and Q and reaches only P's pathway. Each loss
+    equals a rollout computed here with those inputs."""
+    from vgpl.eval.rollout import rollout
+
+    torch.manual_seed(0)
+    dyn, inf = _modules(training_scheme="paper")
+    batch = _batch()
+    losses = inf._losses(batch)
+    param_pathway = inf.param_pathway()
+    rest = [w for w in inf.parameters() if all(w is not v for v in param_pathway)]
+    grad = lambda loss, ws: [g for g in torch.autograd.grad(loss, ws, allow_unused=True, retain_graph=True) if g is not None]  # noqa: E731
+    assert all(not g.any() for g in grad(losses["rollout"], param_pathway))
+    assert sum(g.abs().sum() for g in grad(losses["rollout"], [inf.refine_head.lins[-1].weight, inf.rigid_head.lins[-1].weight])) > 0
+    assert all(not g.any() for g in grad(losses["rollout_from_truth"], rest))
+    assert grad(losses["rollout_from_truth"], [inf.param_head.lins[-1].weight])[0].abs().sum() > 0
+    with torch.no_grad():
+        out = inf.infer(batch["proposals"], batch["logits"], batch["kinematic"][0])
+    truth, t, h = batch["positions"], batch["proposals"].shape[1], dyn.hparams.history
+    target, n_roll = truth[:, h:], t - h + inf.hparams.horizon
+    inputs = {"rollout": (out["positions"][:, :h], out["grouping"], out["rigidness"], batch["params"]),
+              "rollout_from_truth": (truth[:, :h], batch["grouping"], batch["rigid"], out["params"])}
+    for name, (start, g, q, p) in inputs.items():
+        alone = rollout(dyn, torch.cat([start, target], 1), g, q, p, batch["planes"], batch["kinematic"][0], n_roll)
+        torch.testing.assert_close(losses[name].detach(), ((alone - target) / dyn.disp_std).abs().mean(), rtol=1e-5, atol=1e-7)
+
+
+def test_the_paper_scheme_needs_the_papers_two_networks():
+    with pytest.raises(ValueError, match="training_scheme='paper'.*separate_param_net=true"):
+        _modules(training_scheme="paper", separate_param_net=False)
+    with pytest.raises(ValueError, match="training_scheme='fancy'"):
+        _modules(training_scheme="fancy")
 
 
 def test_the_tail_loss_rolls_from_the_last_refined_frames_where_the_evaluation_starts():

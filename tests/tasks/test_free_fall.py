@@ -20,7 +20,7 @@ WINDOW = ["model.inference.window_span=2", "model.inference.observed=10", "model
 def config(tmp: Path, *overrides):
     with initialize_config_dir(str(REPO / "conf"), version_base="1.3"):
         return compose("config", overrides=[
-            "~experiment", "env=rigid_fall", "env.scene.n_steps=13", f"data.root={tmp}/data", "data.n_rollouts=6", "data.train_fraction=0.5", "data.shard_size=6",
+            "experiment=none", "env=rigid_fall", "env.scene.n_steps=13", f"data.root={tmp}/data", "data.n_rollouts=6", "data.train_fraction=0.5", "data.shard_size=6",
             "data.render=false", "data.progress=false", f"paths.output_dir={tmp}/run", f"paths.ckpt_dir={tmp}/ckpt", *WINDOW, *overrides])
 
 

@@ -23,7 +23,7 @@ def config(tmp: Path, *overrides):
         return compose(
             "config",
             overrides=[
-                "~experiment", "env=rigid_fall", "env.scene.n_steps=30", f"data.root={tmp}/data", "data.n_rollouts=6",
+                "experiment=none", "env=rigid_fall", "env.scene.n_steps=30", f"data.root={tmp}/data", "data.n_rollouts=6",
                 "data.shard_size=6", "data.render=false", "data.progress=false", f"paths.output_dir={tmp}/run", f"paths.ckpt_dir={tmp}/ckpt",
                 "trainer.max_epochs=1", "trainer.limit_train_batches=6", "trainer.limit_val_batches=2",
                 "trainer.enable_progress_bar=false", "trainer.log_every_n_steps=2", "eval.n_steps=10", "model.dynamics.net.width=32", *overrides,
@@ -343,7 +343,7 @@ def test_a_run_killed_with_sigkill_resumes_from_its_last_checkpoint(tmp_path):
 
     generate(config(tmp_path, "task=generate"))
     last = tmp_path / "ckpt/dynamics/last.ckpt"
-    cmd = [sys.executable, str(REPO / "run.py"), "~experiment", "task=train_dynamics", "env=rigid_fall", "env.scene.n_steps=30",
+    cmd = [sys.executable, str(REPO / "run.py"), "experiment=none", "task=train_dynamics", "env=rigid_fall", "env.scene.n_steps=30",
            f"data.root={tmp_path}/data", "data.progress=false", f"paths.ckpt_dir={tmp_path}/ckpt", f"hydra.run.dir={tmp_path}/run",
            "model.dynamics.net.width=32", "trainer.max_epochs=100000", "trainer.limit_train_batches=6", "trainer.val_check_interval=2",
            "trainer.limit_val_batches=1", "trainer.enable_progress_bar=false", "eval.n_steps=10", "threads=1"]
@@ -372,7 +372,7 @@ def test_ddp_on_two_cpu_processes_matches_single_process_training(tmp_path):
     import sys
 
     def run(*args):
-        cmd = [sys.executable, str(REPO / "run.py"), "~experiment", "env=rigid_fall", "env.scene.n_steps=30", f"data.root={tmp_path}/data", *args]
+        cmd = [sys.executable, str(REPO / "run.py"), "experiment=none", "env=rigid_fall", "env.scene.n_steps=30", f"data.root={tmp_path}/data", *args]
         proc = subprocess.run(cmd, cwd=tmp_path, capture_output=True, text=True, timeout=300)
         assert proc.returncode == 0, proc.stderr[-2000:]
         return proc.stdout + proc.stderr

@@ -11,7 +11,7 @@ from torch.utils.data import DataLoader, Dataset
 
 from vgpl.data.proposals import Proposals, read_proposals
 from vgpl.data.schema import DatasetError
-from vgpl.data.trajectories import NormStats, Rollouts, load_split
+from vgpl.data.trajectories import NormStats, Rollouts, ground_truth_grouping, load_split
 from vgpl.data.window_pool import check_window_pool, pool_windows
 from vgpl.sim.scene import Scene
 
@@ -61,6 +61,7 @@ class GroundingWindows(Dataset):
         self.index = [(r, s) for r in range(n_rollouts) for s in range(start_frame, last + 1, stride)]
         self.planes = scene.planes_at(rollouts.actions)
         self.kinematic = torch.as_tensor(scene.kinematic)
+        self.grouping = ground_truth_grouping(rollouts)
 
     def __len__(self) -> int:
         return len(self.index)
@@ -73,6 +74,7 @@ class GroundingWindows(Dataset):
             "logits": self.p.logits[r, seen],
             "positions": self.r.positions[r, full], "planes": self.planes[r, full],
             "params": self.r.params[r], "kinematic": self.kinematic, "rigid": self.r.rigid,
+            "grouping": self.grouping,
         }
 
 

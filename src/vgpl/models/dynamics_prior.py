@@ -53,10 +53,17 @@ log = logging.getLogger(__name__)
 PARTICLE, KINEMATIC, GHOST = 0, 1, 2
 
 
-def add_history_noise(history: torch.Tensor, std: torch.Tensor, movable: torch.Tensor) -> torch.Tensor:
-    """Random-walk noise on a position history [B, H, N, 3] (learning_to_simulate): the noise of
-    step k is the sum of k Gaussian increments of ``std`` [3]; the first frame is left exact, and
-    only ``movable`` [N] particles are perturbed."""
+HISTORY_NOISE = ("random_walk", "independent")
+
+
+def add_history_noise(history: torch.Tensor, std: torch.Tensor, movable: torch.Tensor, kind: str = "random_walk") -> torch.Tensor:
+    """Noise on a position history [B, H, N, 3]; only ``movable`` [N] particles are perturbed.
+
+    ``random_walk`` (learning_to_simulate): the noise of frame k is the sum of k Gaussian
+    increments, scaled so that the last frame's std is ``std`` [3]; the first frame is left exact.
+    ``independent`` (the authors' code): every frame gets its own Gaussian of std ``std``."""
+    if kind == "independent":
+        return history + torch.randn_like(history) * std * movable[None, None, :, None]
     steps = torch.randn_like(history[:, 1:]) * std / (history.shape[1] - 1) ** 0.5
     walk = torch.cat([torch.zeros_like(history[:, :1]), steps.cumsum(1)], 1)
     return history + walk * movable[None, None, :, None]
@@ -80,10 +87,14 @@ class DynamicsPrior(NormalisationBuffers, L.LightningModule):
         rollout_steps: int = 1,
         rigid_head: str = "pooled",
         noise_free_steps: int = 0,
+        history_noise: str = "random_walk",
     ) -> None:
         super().__init__()
-        if rigid_head not in ("pooled", "projected"):
-            raise ValueError(f"DynamicsPrior: rigid_head={rigid_head!r} (model.dynamics.net.rigid_head), expected 'pooled' (the paper) or 'projected'")
+        if rigid_head not in ("pooled", "projected", "none"):
+            raise ValueError(f"DynamicsPrior: rigid_head={rigid_head!r} (model.dynamics.net.rigid_head), expected 'pooled' (the paper), "
+                             "'projected' or 'none' (no rigid-body constraint: every particle free, Q ignored)")
+        if history_noise not in HISTORY_NOISE:
+            raise ValueError(f"DynamicsPrior: history_noise={history_noise!r} (model.dynamics.net.history_noise), expected one of {HISTORY_NOISE}")
         if rollout_steps < 1:
             raise ValueError(f"DynamicsPrior: rollout_steps={rollout_steps}, expected at least 1 (steps rolled in the training loss)")
         if noise_free_steps < 0:
@@ -97,7 +108,7 @@ class DynamicsPrior(NormalisationBuffers, L.LightningModule):
         self.edge_term = nn.Linear(width, width)
         self.propagator = Propagator(width)
         self.nonrigid_head = MLP([width, width, width, 3], norm=None)
-        self.rigid_head = MLP([width, width, width, 7 if rigid_head == "pooled" else 3], norm=None)
+        self.rigid_head = None if rigid_head == "none" else MLP([width, width, width, 7 if rigid_head == "pooled" else 3], norm=None)
         self.max_degree_seen = 0
 
     # ---- normalisation (physics outside the network; set_stats, normalise_params: the mixin) -----
@@ -172,6 +183,8 @@ class DynamicsPrior(NormalisationBuffers, L.LightningModule):
         predicted frame (only the kinematic particles' are read; needed with ``action_lookahead``).
         """
         b, _, n, _ = history.shape
+        if self.rigid_head is None:  # no rigid-body constraint: Q reaches neither the input nor the output
+            rigidness = torch.zeros_like(rigidness)
         nodes, edge_index, edge_attr = self.build_inputs(history, grouping, rigidness, params, planes, kinematic, kinematic_next)
         code = self.node_encoder(nodes)
         term = self.edge_term(self.edge_encoder(nodes, edge_attr, edge_index))
@@ -180,6 +193,8 @@ class DynamicsPrior(NormalisationBuffers, L.LightningModule):
             effect = self.propagator(effect, code, term, edge_index)
         particle = effect[: b * n].reshape(b, n, -1)
         nonrigid = self.nonrigid_head(particle)
+        if self.rigid_head is None:
+            return nonrigid
         rotation, translation = self.rigid_motion(history[:, -1], grouping, particle)
         rigid = self.to_normalised(rigid_displacement(history[:, -1], grouping, rotation, translation))
         q = (grouping * rigidness[:, None, :]).sum(-1, keepdim=True)
@@ -221,7 +236,7 @@ class DynamicsPrior(NormalisationBuffers, L.LightningModule):
         history = positions[:, :h]
         rigidness = batch["rigidness"]
         if noise and self.hparams.noise > 0 and not self.in_noise_free_finish():
-            history = add_history_noise(history, self.hparams.noise * self.disp_std, ~kinematic)
+            history = add_history_noise(history, self.hparams.noise * self.disp_std, ~kinematic, self.hparams.history_noise)
         if noise and self.hparams.rigid_dropout > 0:
             # a rigid body is also a (stiff) non-rigid one: teaching the per-particle head rigid motion
             # makes q = 0 a usable input (the no-rigidness ablation) and q's estimate a real choice

@@ -139,6 +139,7 @@ class InferenceModule(AnnealedLearningRate, NormalisationBuffers, L.LightningMod
         rigidness_estimator: str = "blend",
         proposal_noise: float = 0.0,
         bernoulli_from_step: int | None = None,
+        training_scheme: str = "joint",
     ) -> None:
         super().__init__()
         if param_rotation and not separate_param_net:
@@ -148,6 +149,13 @@ class InferenceModule(AnnealedLearningRate, NormalisationBuffers, L.LightningMod
             raise ValueError(f"InferenceModule: tail_horizon={tail_horizon}, expected 0 (off) to horizon={horizon} (the future frames a window holds)")
         if trajectory_start not in ("refined", "truth", "both"):
             raise ValueError(f"InferenceModule: trajectory_start={trajectory_start!r}, expected 'refined' (the paper), 'truth' or 'both'")
+        if training_scheme not in ("joint", "paper"):
+            raise ValueError(f"InferenceModule: training_scheme={training_scheme!r}, expected 'paper' (each network rolls the prior with "
+                             "the true values of the other's outputs) or 'joint' (both roll with the module's own outputs)")
+        if training_scheme == "paper" and (not separate_param_net or trajectory_start != "refined" or rigidness_estimator != "blend"):
+            raise ValueError("InferenceModule: training_scheme='paper' trains the paper's two networks, each with its own rollout; it needs "
+                             f"separate_param_net=true, trajectory_start='refined' and rigidness_estimator='blend' (got {separate_param_net}, "
+                             f"{trajectory_start!r}, {rigidness_estimator!r})")
         if rigidness_estimator not in ("blend", "bernoulli"):
             raise ValueError(f"InferenceModule: rigidness_estimator={rigidness_estimator!r}, expected 'blend' (the paper: Q is the prior's "
                              "blend weight) or 'bernoulli' (Q is the probability of the label the prior sees)")
@@ -304,14 +312,21 @@ class InferenceModule(AnnealedLearningRate, NormalisationBuffers, L.LightningMod
         n_roll, mode = t - h + k, self.hparams.trajectory_start
         if n_roll > 0:
             target = truth[:, h : t + k]
-            # "both" rolls the two starts as one batch of 2B scenes: one graph and one prior call a
-            # step instead of two (scenes never share edges, so each half is what it would be alone)
-            runs = {"refined": {"rollout": (x[:, :h], p)}, "truth": {"rollout_from_truth": (truth[:, :h], p)},
-                    "both": {"rollout": (x[:, :h], p.detach()), "rollout_from_truth": (truth[:, :h], p)}}[mode]
+            # each run: (start frames, G, Q, P) through the frozen prior. The runs are rolled as one
+            # batch of n B scenes: one graph and one prior call a step (scenes never share edges)
+            if self.hparams.training_scheme == "paper":
+                # the paper's two networks, each with the true values of the other's outputs: dX and Q
+                # roll with the true P; P rolls from the true frames with the true G and Q
+                true_p = batch["params"].to(p)
+                true_q = batch["rigid"].to(q) if self.hparams.rigidness else torch.zeros_like(q)
+                runs = {"rollout": (x[:, :h], g, q, true_p), "rollout_from_truth": (truth[:, :h], batch["grouping"].to(g), true_q, p)}
+            else:
+                runs = {"refined": {"rollout": (x[:, :h], g, q, p)}, "truth": {"rollout_from_truth": (truth[:, :h], g, q, p)},
+                        "both": {"rollout": (x[:, :h], g, q, p.detach()), "rollout_from_truth": (truth[:, :h], g, q, p)}}[mode]
             n = len(runs)
-            start, params = (torch.cat(z) for z in zip(*runs.values()))
+            start, groupings, rigidities, params = (torch.cat(z) for z in zip(*runs.values()))
             targets = tile_batch(target, n)
-            future = rollout(dyn, torch.cat([start, targets], 1), tile_batch(g, n), tile_batch(q, n), params, tile_batch(planes, n), kinematic, n_roll)
+            future = rollout(dyn, torch.cat([start, targets], 1), groupings, rigidities, params, tile_batch(planes, n), kinematic, n_roll)
             error = ((future - targets) / scale).abs()[:, :, movable]
             for i, name in enumerate(runs):  # "both": P learns from the true start only, dX through the refined one
                 losses[name] = error[i * b : (i + 1) * b].mean()
