@@ -39,9 +39,9 @@ from vgpl.models.dynamics_prior import DynamicsPrior  # noqa: E402
 from vgpl.models.inference import InferenceModule  # noqa: E402
 
 VARIANTS = [  # (batch, separate_param_net, max_neighbors)
-    (4, True, 24),   # the first standard run (session 4)
+    (4, True, 24),   # the first standard run
     (2, True, 24),   # the paper's batch
-    (2, False, 24),  # one shared encoder (the standard preset until session 24; --preset: what it is now)
+    (2, False, 24),  # one shared encoder (--preset: the standard preset's settings)
     (2, False, 16),
 ]
 COMPILED = {  # --compile: the submodules of the prior and of each encoder that torch.compile wraps
@@ -101,7 +101,7 @@ def main() -> None:
     parser.add_argument("--repeat", type=int, default=8)
     parser.add_argument("--threads", type=int, default=2)
     parser.add_argument("--trajectory-start", default="refined", choices=["refined", "truth", "both"],
-                        help="model.inference.net.trajectory_start ('both' rolls two starts: the standard runs since session 8)")
+                        help="model.inference.net.trajectory_start ('both' rolls two starts, as the standard preset)")
     parser.add_argument("--window-span", type=int, default=20, help="model.inference.window_span the proposals were exported for (quick: 8; --preset reads the run's)")
     parser.add_argument("--fp32", action="store_true", help="no bf16 autocast (what fast_precision picks on a CPU without bf16 units)")
     parser.add_argument("--variants", type=int, nargs="*", help="indices into VARIANTS to run (default: all)")

@@ -6,7 +6,7 @@ A step is the model's part of what Lightning runs: the position and grouping los
 Adam, under autocast for ``bf16-mixed``, on batches of 32 windows streamed from the training shards
 (the standard preset's setting); not the batch's loading (``benchmarks/video_loading.py``: 58 ms
 streamed) or Lightning's own per-step overhead. The layouts: ``channels_last`` (the encoder and its input, what
-``VisualPrior`` uses) and ``contiguous`` (NCHW, what it used before session 65). Median over
+``VisualPrior`` uses) and ``contiguous`` (NCHW). Median over
 ``--repeat`` steps after two warm-ups; four batches are drawn once and cycled, so every variant
 sees the same.
 """

@@ -1,4 +1,4 @@
-"""The commands and config keys the user-facing docs (README.md, docs/reproduce.md) give must still
+"""The commands and config keys the user-facing docs (README.md, docs/*.md) give must still
 compose with Hydra, as the notebooks must still run: a renamed or removed option breaks a test here,
 not the first researcher who pastes the command. Every link in README.md and docs/*.md must reach a
 file or a heading.
@@ -6,8 +6,8 @@ file or a heading.
 Every ``python run.py ...`` command (fenced blocks, backslash continuations joined, and inline code),
 each point of a ``-m`` sweep, is composed from conf/ and resolved, and its task must exist. Inline
 ``key=value`` overrides and bare config keys in the prose are checked against the ``standard`` preset
-(``task.*`` keys against the task config that defines them). docs/experiments.md is a log of what was
-run at the time and is not checked. Placeholders a reader fills in (``<env>``, ``<preset>``, ...) take
+(``task.*`` keys against the task config that defines them, ``env.*`` keys against the env that has
+them). Placeholders a reader fills in (``<env>``, ``<preset>``, ...) take
 a real value; commands elided with ``...`` or shell variables are skipped, and counted.
 """
 
@@ -30,7 +30,7 @@ import vgpl  # noqa: F401  (registers the config resolvers)
 from vgpl.tasks import TASKS
 
 REPO = Path(__file__).resolve().parents[1]
-DOCS = ["README.md", "docs/reproduce.md"]
+DOCS = ["README.md", *(f"docs/{p.name}" for p in sorted((REPO / "docs").glob("*.md")))]
 BROKEN = (HydraException, OmegaConfBaseException, AssertionError)  # a bad override or group, an unresolvable value, an unknown task
 PLACEHOLDERS = {"<env>": "rigid_fall", "<preset>": "quick", "<partition>": "debug", "<date>/<time>": "2026-01-01/00-00-00"}
 COMMAND = re.compile(r"python run\.py[^#&;|\n]*")  # up to a comment, &&, ; or a pipe (a redirect: strip_redirect)
@@ -147,6 +147,8 @@ def context_for(key: str) -> list[str]:
         context.append(f"task={task}")
     if key.startswith("hydra.launcher."):
         context.append("hydra/launcher=slurm")
+    if key.startswith("env.scene.start_stretch"):  # MassRope's scene alone has it
+        context.append("env=mass_rope")
     return context
 
 
@@ -171,7 +173,7 @@ def test_every_documented_override_and_config_key_exists(docs_text, hydra_conf) 
         if not has_key(composed[context], key):
             failures.append(f"`{key}`: no such key in the standard preset's config{' or any task config' if key.startswith('task.') else ''}")
     assert not failures, "documented config keys that no longer exist:\n" + "\n".join(failures)
-    assert len(overrides) >= 20 and len(keys) >= 20, (len(overrides), len(keys))
+    assert len(overrides) >= 12 and len(keys) >= 100, (len(overrides), len(keys))  # the extraction still finds them
 
 
 def github_anchor(heading: str) -> str:
@@ -182,7 +184,7 @@ def github_anchor(heading: str) -> str:
 def test_every_link_in_the_docs_reaches_a_file_or_a_heading() -> None:
     """Relative links resolve from the linking file's folder (as GitHub renders them), anchors to one
     of its headings (a repeated heading's later ids get -1, -2, ...)."""
-    assert github_anchor("Where issue 4 stands (sessions 36-51; each env's best)") == "where-issue-4-stands-sessions-36-51-each-envs-best"
+    assert github_anchor("Results (standard preset; 2 cores)") == "results-standard-preset-2-cores"
     broken = []
     for doc in [REPO / "README.md", *sorted((REPO / "docs").glob("*.md"))]:
         text = doc.read_text()

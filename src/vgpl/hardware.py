@@ -1,12 +1,8 @@
 """What the CPU can do fast: its vector extensions, and whether bf16 arithmetic is native.
 
-On a CPU without ``avx512_bf16`` or ``amx_bf16`` (e.g. Intel Cascade Lake), PyTorch emulates
-bf16 and ``trainer.precision=bf16-mixed`` is slower than fp32: 245 against 119 ms a RigidFall
-dynamics training step, measured (README: Speed). On the AMD EPYC of the earlier measurements,
-which has it, bf16-mixed was 2-2.6x faster than fp32 (benchmarks/results_dynamics.jsonl). The flags
-promise native bf16, not speed: on an Intel Xeon model 207 (avx512_bf16, AMX hidden) bf16 was 10% slower
-than fp32 for the visual prior and within 13% either way for the dynamics prior (README: Speed).
-On an Intel Xeon with ``amx_bf16`` exposed (session 84) the visual prior's bf16 step was 2.2x faster (605 against 1,323 ms).
+On a CPU without ``avx512_bf16`` or ``amx_bf16`` PyTorch emulates bf16 and
+``trainer.precision=bf16-mixed`` is slower than fp32. The flags promise native bf16, not speed:
+docs/benchmarks.md gives the measured steps on CPUs with and without them.
 """
 
 from __future__ import annotations

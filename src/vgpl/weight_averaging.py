@@ -3,9 +3,8 @@
 being trained are kept under the checkpoint's ``current_model_state`` (so ``ckpt_path=last``
 resumes both, and ``trained_weights_checkpoint`` recovers them for comparison).
 
-Why: with batch 2 the inference module's global parameter head drifts between checkpoints
-(docs/experiments.md, RigidFall session 19: gravity MAE 10.9% at 1,170 steps, 13.0% at 1,800, the offset
-flipping); an average over the last ~1 / (1 - decay) steps settles it.
+Why: with batch 2 the inference module's global parameter head drifts between checkpoints; an
+average over the last ~1 / (1 - decay) steps settles it (docs/design.md).
 """
 
 from __future__ import annotations

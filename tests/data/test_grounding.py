@@ -86,7 +86,7 @@ def test_a_negative_validation_span_is_refused_by_name():
 
 @pytest.mark.parametrize("env, start", [("rigid_fall", 0), ("fluid_cube", 0), ("mass_rope", 20)])
 def test_the_standard_preset_validates_where_evaluate_observes(env, start):
-    """One validation window per test video, at the env's start_frame (README: design; docs/experiments.md, session 24)."""
+    """One validation window per test video, at the env's start_frame."""
     from hydra import compose, initialize_config_dir
 
     from tests.conftest import REPO
@@ -98,7 +98,7 @@ def test_the_standard_preset_validates_where_evaluate_observes(env, start):
     dm = grounding_datamodule(cfg, scene)
     dm.test, dm.test_proposals = rollouts, proposals
     assert dm.val_dataloader().dataset.index == [(0, start), (1, start)]
-    assert cfg.model.inference.net.separate_param_net  # the paper's two encoders (docs/experiments.md: sessions 23-24)
+    assert cfg.model.inference.net.separate_param_net  # the paper's two encoders
 
 
 def test_proposals_of_other_rollouts_are_refused_by_file_name(tmp_path):

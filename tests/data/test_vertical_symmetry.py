@@ -41,7 +41,7 @@ def test_rigid_fall_simulated_turned_is_the_simulation_turned():
     video only as much as 1e-6 m nudges of the same state do (contacts amplify any rounding).
 
     The nudges are four, not one: which way a contact resolves flips on rounding, so one nudge is
-    one draw of the chaos. On an Intel Xeon with AVX-512 (session 78) seed 3's turned run ended
+    one draw of the chaos. On an Intel Xeon with AVX-512 seed 3's turned run ended
     8.4 cm off, one nudge 4.3 mm and another 8.4 cm, the same flip (the one-nudge test had passed
     on the AMD machines before; which way that nudge went there was not recorded)."""
     scene = RigidFall(n_steps=60)

@@ -121,7 +121,7 @@ def test_gate_names_only_the_parameters_whose_oracle_is_not_below_the_ratio_time
     from vgpl.tasks.identifiability import unidentified
 
     metrics = {"oracle_param_mae_pct/a": 15.0, "midpoint_param_mae_pct/a": 27.2,   # FluidCube, horizon 15
-               "oracle_param_mae_pct/b": 35.9, "midpoint_param_mae_pct/b": 29.1}   # MassRope, session 7
+               "oracle_param_mae_pct/b": 35.9, "midpoint_param_mae_pct/b": 29.1}   # MassRope
     assert unidentified(metrics, ["a", "b"], max_ratio=1.0) == {"b": (35.9, 29.1)}
     assert unidentified(metrics, ["a", "b"], max_ratio=0.5) == {"a": (15.0, 27.2), "b": (35.9, 29.1)}
     assert unidentified(metrics, ["a"], max_ratio=15.0 / 27.2) == {"a": (15.0, 27.2)}  # equal is a failure: strictly below
@@ -149,7 +149,7 @@ def test_a_prior_blind_to_p_gives_no_gradient_and_no_agreement():
 
 def test_windows_after_landing_teach_nothing_while_the_fall_teaches_p():
     """RigidFall in miniature: particles fall onto a floor at y = 0 and stay. A window rolled from the
-    fall has the gradient right; one rolled from the rest has none (the README's RigidFall table)."""
+    fall has the gradient right; one rolled from the rest has none (docs/design.md)."""
     params = torch.tensor([[-14.0], [-11.0], [-6.0]])
     torch.manual_seed(0)
     start = torch.rand(3, 2, 4, 3) * 0.02 + torch.tensor([0.0, 0.05, 0.0])  # 5-7 cm above the floor

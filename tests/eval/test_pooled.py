@@ -17,9 +17,9 @@ def _run(ablation: str, mae: float, std: float, errors: dict[str, float], infere
 
 
 def test_two_seeds_of_a_variant_give_their_mean_and_each_run():
-    seed0 = _run("full", 7.0, 5.4, {"900": 100.0, "901": 50.0}, "s0/inference/last.ckpt")
-    seed1 = _run("full", 8.0, 6.0, {"900": 60.0, "901": 70.0}, "s1/inference/last.ckpt")
-    other = _run("no_rigidness", 9.0, 7.0, {"900": 90.0, "901": 90.0}, "s0/inference_no_rigidness/last.ckpt")
+    seed0 = _run("full", 7.0, 5.4, {"900": 100.0, "901": 50.0}, "seed0/inference/last.ckpt")
+    seed1 = _run("full", 8.0, 6.0, {"900": 60.0, "901": 70.0}, "seed1/inference/last.ckpt")
+    other = _run("no_rigidness", 9.0, 7.0, {"900": 90.0, "901": 90.0}, "seed0/inference_no_rigidness/last.ckpt")
     pooled = pool_runs([seed0, other, seed1])
     assert [(r["ablation"], r.get("runs", 1)) for r in pooled] == [("full", 2), ("no_rigidness", 1)]
     full = pooled[0]
@@ -29,7 +29,7 @@ def test_two_seeds_of_a_variant_give_their_mean_and_each_run():
     assert "param_mae_pct_std" not in full  # a mean of two spreads over videos is no spread
     assert full["midpoint_param_mae_pct_std"] == 12.5 and full["observed"] == 10  # the same in every run: kept
     assert "rigidness_curve" not in full and full["rigidness_prob@10/cube"] == pytest.approx(0.9)
-    assert full["checkpoints"] == [{"inference": "s0/inference/last.ckpt"}, {"inference": "s1/inference/last.ckpt"}]
+    assert full["checkpoints"] == [{"inference": "seed0/inference/last.ckpt"}, {"inference": "seed1/inference/last.ckpt"}]
 
     records = [seed0, other, seed1]
     assert table1_rows(records)[1][-1] == ["VGPL", "7.5% (runs 7.0, 8.0)"]
@@ -44,10 +44,10 @@ def test_two_seeds_of_a_variant_give_their_mean_and_each_run():
 
 
 def test_runs_on_different_test_videos_are_refused_with_their_checkpoints():
-    seed0 = _run("full", 7.0, 5.4, {"900": 100.0, "901": 50.0}, "s0/inference/last.ckpt")
-    elsewhere = _run("full", 8.0, 6.0, {"900": 60.0, "902": 70.0}, "s1/inference/last.ckpt")
-    with pytest.raises(ValueError, match=r"vgpl full on rigid_fall: 2 runs to pool were evaluated on different test videos.*s1/inference/last.ckpt"):
+    seed0 = _run("full", 7.0, 5.4, {"900": 100.0, "901": 50.0}, "seed0/inference/last.ckpt")
+    elsewhere = _run("full", 8.0, 6.0, {"900": 60.0, "902": 70.0}, "seed1/inference/last.ckpt")
+    with pytest.raises(ValueError, match=r"vgpl full on rigid_fall: 2 runs to pool were evaluated on different test videos.*seed1/inference/last.ckpt"):
         pool_runs([seed0, elsewhere])
-    fewer = {k: v for k, v in _run("full", 8.0, 6.0, {"900": 60.0}, "s1").items() if k != PER_VIDEO.format(20)}  # older records
+    fewer = {k: v for k, v in _run("full", 8.0, 6.0, {"900": 60.0}, "seed1").items() if k != PER_VIDEO.format(20)}  # older records
     with pytest.raises(ValueError, match=r"n_test \[2, 1\]"):
         pool_runs([seed0, fewer])

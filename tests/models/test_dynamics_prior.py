@@ -223,8 +223,7 @@ def test_rollout_steps_loss_rolls_on_its_own_predictions_and_its_first_step_is_t
 
 
 def test_noise_free_steps_train_the_last_k_steps_without_history_noise(monkeypatch, caplog):
-    """noise_free_steps=2 of max_steps=6: the history noise is drawn at steps 0-3 and not at 4-5
-    (session 41: noise to the end leaves RigidFall's prior falling at 0.96 of the true acceleration);
+    """noise_free_steps=2 of max_steps=6: the history noise is drawn at steps 0-3 and not at 4-5;
     a fit that max_epochs stops before the finish says so."""
     import lightning as L
     from torch.utils.data import DataLoader

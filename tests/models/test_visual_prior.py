@@ -34,8 +34,8 @@ def test_under_a_time_budget_the_anneal_follows_whichever_schedule_is_further_on
 
 
 def test_a_fit_stopped_before_its_anneal_ended_says_so_and_how_to_finish():
-    """A time cap can stop a fit before max_steps: session 33's first 7,000-step run stopped at
-    5,441 of 7,000 with lr_anneal_steps=2000, and its last.ckpt was not the annealed prior."""
+    """A time cap can stop a fit before max_steps (a 7,000-step run stopped at 5,441 with
+    lr_anneal_steps=2000), and its last.ckpt is then not the annealed prior: the warning says so."""
     mid = unfinished_anneal("visual", 2000, 5441, 7000)
     assert mid.startswith("visual: stopped at step 5441 of 7000, mid-anneal, at 88% of lr (model.visual.net.lr_anneal_steps=2000)")
     assert "ckpt_path=last model.visual.trainer.max_time=null" in mid
@@ -104,7 +104,7 @@ def test_a_fit_the_clock_stops_first_ends_annealed_and_resumes_on_the_same_sched
 def test_the_encoder_runs_channels_last_and_computes_what_the_nchw_layout_does():
     """The encoder's weights and input are stored channels-last (the fast convolutions' layout,
     benchmarks/visual.py); channel f * 3 + c is frame f's colour c as before, the outputs match
-    the same weights run in NCHW, and a state dict saved in NCHW (checkpoints before session 65)
+    the same weights run in NCHW, and a state dict saved in NCHW (older checkpoints)
     loads into it and gives the same outputs."""
     torch.manual_seed(0)
     frames = torch.randint(0, 255, (2, 4, 24, 32, 3), dtype=torch.uint8)

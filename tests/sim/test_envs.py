@@ -1,4 +1,4 @@
-"""The environments match REFERENCE.md and reject bad options with one clear error."""
+"""The environments match docs/paper.md and reject bad options with one clear error."""
 
 from __future__ import annotations
 
@@ -73,7 +73,7 @@ def test_rollout_does_not_depend_on_its_batch():
 
 @pytest.mark.parametrize("env,span", [("rigid_fall", 5), ("fluid_cube", 20), ("mass_rope", 20)])
 def test_standard_preset_draws_rigid_falls_inference_windows_before_the_cubes_land(env, span):
-    """RigidFall's gravity shows only while the cubes fall (docs/experiments.md, session 16): its standard
+    """RigidFall's gravity shows only while the cubes fall: its standard
     inference windows start in frames 0-5; the other envs keep 20. An explicit override still wins."""
     with initialize_config_dir(str(REPO / "conf"), version_base="1.3"):
         cfg = compose("config", overrides=[f"env={env}", "experiment=standard"])
@@ -84,8 +84,7 @@ def test_standard_preset_draws_rigid_falls_inference_windows_before_the_cubes_la
 
 def test_fluid_cubes_cube_sinks_over_its_first_16_frames_then_settles():
     """The cube is dropped onto the fluid and sinks fast over the first 16 frames. Observed from frame 10,
-    the inference module read that splash as a thin fluid (viscosity bias -21 points; from frame 20:
-    -3.9; docs/experiments.md, session 58), so FluidCube is evaluated from frame 20 (``env.start_frame=20``),
+    the inference module read that splash as a thin fluid, so FluidCube is evaluated from frame 20 (``env.start_frame=20``),
     where every scene's cube sinks at under half its fastest speed of frames 0-16."""
     start = 20
     scene = make_scene("fluid_cube", n_steps=start + 4)
@@ -98,7 +97,7 @@ def test_fluid_cubes_cube_sinks_over_its_first_16_frames_then_settles():
 
 @pytest.mark.parametrize("experiment,stream", [("quick", False), ("standard", True), ("paper", True)])
 def test_the_larger_presets_train_the_visual_prior_on_every_video_streamed(experiment, stream):
-    """Session 19: all 900 training videos instead of 200 cut RigidFall's visual test MSE by a
+    """All 900 training videos instead of 200 cut RigidFall's visual test MSE by a
     quarter; streamed from the shards, they need no memory (6.2 GB for RigidFall, ~31 GB at the
     paper's sizes). The quick preset's few videos stay in memory."""
     with initialize_config_dir(str(REPO / "conf"), version_base="1.3"):

@@ -1,4 +1,4 @@
-"""Physics checks that would catch a wrong engine (issue 2's acceptance)."""
+"""Physics checks that would catch a wrong engine ."""
 
 from __future__ import annotations
 

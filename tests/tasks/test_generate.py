@@ -116,8 +116,8 @@ def test_changed_config_never_overwrites_existing_data(tmp_path):
 
 def test_the_learned_stages_env_keys_leave_the_data_as_it_is(tmp_path):
     """Only the env's scene (and name) makes the data: a dataset stays valid when the env config's
-    keys for the models change (before session 70 each such change refused the data as "another
-    configuration", e.g. RigidFall's standard budgets of session 69), and a scene change is still refused."""
+    keys for the models change (otherwise each such change would refuse the data as "another
+    configuration"), and a scene change is still refused."""
     first = generate(config(tmp_path))
     again = generate(config(tmp_path, "env.graph_radius=0.1", "env.rigid_head=pooled", "env.start_frame=3",
                             "env.standard_window_span=20", "env.standard_reference_steps.visual=7"))

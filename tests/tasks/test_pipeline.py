@@ -30,10 +30,10 @@ TINY = [
     "model.inference.batch_size=4", "model.inference.net.width=32", "model.inference.window_stride=1", "model.inference.net.max_neighbors=12", "model.inference.trainer.max_steps=600", "model.inference.trainer.val_check_interval=300",
     # refinement's direct L1 weighted as the quick preset weights P's (param_weight 10): at the default 1 the 600 steps left
     # dX near zero and the refined MSE x 1e4 a coin flip about the proposals' 13.98 (12.92 to 14.07 in six draws, two above);
-    # at 10, 12.78 to 12.94 in four (session 79, README: Tests)
+    # at 10, 12.78 to 12.94 in four
     "model.inference.net.refine_weight=10",
     # the weights' moving average (as the standard preset's 0.998): the validation gravity swings by up to 10 points between
-    # checkpoints 300 steps apart at this scale, and session 79's CI draw ended 25.9% against the midpoint's 26.3%; with it
+    # checkpoints 300 steps apart at this scale, and's CI draw ended 25.9% against the midpoint's 26.3%; with it
     # seeds 0 and 5 read 20.5% and 18.4% (refined MSE 12.86, 12.64), its CI run 21.4% (12.68)
     "model.inference.ema.decay=0.99",
     "model.densephysnet.net.channels=8", "model.densephysnet.net.latent=8", "model.densephysnet.trainer.max_steps=100",
@@ -72,7 +72,7 @@ def test_inferred_parameters_beat_the_range_midpoint(tiny):
     per_video = [float(r["future_mse_x1e4@10"]) for r in rows]  # eval.n_steps=10: the record's T+10 again
     assert sum(per_video) / len(per_video) == pytest.approx(full["future_mse_x1e4@10"], rel=1e-4)
     assert full[PER_VIDEO.format(10)] == pytest.approx({r["rollout_id"]: v for r, v in zip(rows, per_video)}, rel=1e-5)  # the record pairs videos
-    for step in (1, 5):  # Table 2's earlier horizons per video too, so that the four-way pairs at each of them (session 71)
+    for step in (1, 5):  # Table 2's earlier horizons per video too, so that the four-way pairs at each of them
         column = [float(r[f"future_mse_x1e4@{step}"]) for r in rows]
         assert sum(column) / len(column) == pytest.approx(full[f"future_mse_x1e4@{step}"], rel=1e-4)
         assert full[PER_VIDEO.format(step)] == pytest.approx({r["rollout_id"]: v for r, v in zip(rows, column)}, rel=1e-5)

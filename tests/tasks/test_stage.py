@@ -72,8 +72,7 @@ def test_the_report_lists_every_training_and_flags_the_time_capped_one():
 @pytest.mark.parametrize("max_epochs,reaches_max_steps", [(1, False), (-1, True)])
 def test_a_fit_resumed_after_a_time_stop_reaches_max_steps_only_without_an_epoch_cap(tmp_path, max_epochs, reaches_max_steps):
     """Lightning counts the epoch a max_time stop cut as done: the resumed fit starts the next one.
-    With an epoch cap it can end at once (session 19: an inference run resumed to 1,800 of its
-    2,700 steps); budgeted in steps (max_epochs=-1) it goes on to max_steps."""
+    With an epoch cap it can end at once; budgeted in steps (max_epochs=-1) it goes on to max_steps."""
     cut = fit(0.05, max_steps=40, max_epochs=max_epochs, max_time={"seconds": 0.5})
     assert stopping(cut)["stopped_by"] == "max_time" and cut.global_step < 16  # inside the first epoch
     cut.save_checkpoint(tmp_path / "last.ckpt")
@@ -111,9 +110,9 @@ class ValidatedRegression(SlowRegression):
 
 
 def test_a_copied_stage_folder_resumes_into_its_own_last_ckpt_without_versioned_copies(tmp_path):
-    """Sessions 28-29 copied a stage folder and resumed it to train on. Lightning's version counter
-    then wrote last-v1.ckpt and best-v1.ckpt, and last.ckpt stayed at the copy's step, so
-    ``ckpt_path=last`` after a kill would have restarted from there."""
+    """A stage folder copied and resumed to train on: Lightning's version counter would write
+    last-v1.ckpt and best-v1.ckpt and leave last.ckpt at the copy's step, so ``ckpt_path=last``
+    after a kill would restart from there."""
     data = DataLoader(TensorDataset(torch.randn(64, 2), torch.randn(64, 1)), batch_size=4)  # 16 steps an epoch
 
     def fit_into(folder, max_steps, ckpt_path=None):
@@ -156,8 +155,7 @@ class CountedRegression(ValidatedRegression):
 
 @pytest.mark.parametrize("max_steps,validations", [(20, 3), (16, 2)])
 def test_the_reported_validation_describes_the_final_weights(max_steps, validations):
-    """Session 31's inference run stopped at step 1,822 and reported step 1,500's validation. A fit
-    that ends between validations is validated once more; one that ends on a validation is not."""
+    """A fit stopped at step 1,822 would report step 1,500's validation, so a fit that ends between validations is validated once more; one that ends on a validation is not."""
     torch.manual_seed(0)
     x, y = torch.randn(64, 2), torch.randn(64, 1)
     data = DataLoader(TensorDataset(x, y), batch_size=64)
@@ -177,10 +175,9 @@ def test_the_reported_validation_describes_the_final_weights(max_steps, validati
 
 @pytest.mark.parametrize("env", ["rigid_fall", "fluid_cube", "mass_rope"])
 def test_the_standard_inference_stage_is_trained_as_the_readmes_measured_runs(env):
-    """Every run in the README's "Where issue 4 stands" had two encoders, both trajectory starts and
-    an EMA of 0.998 (sessions 23-26); the preset carries them, so one command reproduces them. Since
-    session 29 it also rolls from the last refined frames (tail_horizon 5; the MassRope and
-    FluidCube rows predate it: model.inference.net.tail_horizon=0 reproduces them)."""
+    """The standard runs in docs/results.md had two encoders, both trajectory starts and an EMA of
+    0.998, and roll from the last refined frames (tail_horizon 5): the preset carries them, so one
+    command reproduces them."""
     with initialize_config_dir(str(REPO / "conf"), version_base="1.3"):
         cfg = compose("config", overrides=[f"env={env}", "experiment=standard"])
     net = cfg.model.inference.net
@@ -190,7 +187,7 @@ def test_the_standard_inference_stage_is_trained_as_the_readmes_measured_runs(en
 
 
 def test_the_standard_visual_stage_anneals_the_last_third_of_its_budget():
-    """Its 15-min cap stops it near step 1,000 of 3,000 on a 2-core CPU (session 35), so the anneal
+    """Its 15-min cap stops it near step 1,000 of 3,000 on a 2-core CPU, so the anneal
     of the last 1,000 steps runs on the clock: it begins at 10 of the 15 minutes and ends at zero
     at the cap, and on a machine fast enough to reach 3,000 steps it begins at step 2,000."""
     with initialize_config_dir(str(REPO / "conf"), version_base="1.3"):
@@ -207,9 +204,9 @@ def test_the_standard_visual_stage_anneals_the_last_third_of_its_budget():
 
 def test_the_standard_prior_ends_without_history_noise_on_its_clock():
     """The last 13,000 of the 78,300 steps (3 epochs) train without the history noise; the 58-min
-    clock stops a 2-core CPU near 59,000 steps (session 42), so the finish runs on the clock: from
+    clock stops a 2-core CPU near 59,000 steps, so the finish runs on the clock: from
     48.4 minutes to the end, and by step on a machine fast enough to reach 78,300. (MassRope's and
-    FluidCube's 58 min; RigidFall's prior has 20, whose finish begins at 16.7, session 69.)"""
+    FluidCube's 58 min; RigidFall's prior has 20, whose finish begins at 16.7.)"""
     with initialize_config_dir(str(REPO / "conf"), version_base="1.3"):
         cfg = compose("config", overrides=["env=mass_rope", "experiment=standard"])
     k, max_steps, budget_s = cfg.model.dynamics.net.noise_free_steps, cfg.trainer.max_steps, 58 * 60
@@ -224,12 +221,11 @@ def test_the_standard_prior_ends_without_history_noise_on_its_clock():
 
 
 def test_the_standard_prior_and_visual_stage_train_in_bf16_where_it_is_fast_and_the_baseline_in_fp32():
-    """The README's measured standard priors ran in bf16-mixed, passed by hand until session 53
-    (FluidCube: 14.5 steps/s against 9.3 in fp32 on the AMD EPYC); the preset says so for the prior
-    and, since session 65, the visual prior (RigidFall: 1,536 steps in its 15 minutes against 757,
+    """The measured standard priors ran in bf16-mixed (FluidCube: 14.5 steps/s against 9.3 in fp32
+    on the AMD EPYC); the preset says so for the prior and the visual prior (RigidFall: 1,536 steps in its 15 minutes against 757,
     proposal error 11.09 -> 8.85 x 1e4), where the CPU has bf16 units, while the baseline keeps the
     fp32 it was measured in and the inference stage its own choice. ``trainer.precision`` still
-    reaches the prior, so the README's fp32 commands reproduce."""
+    reaches the prior, so fp32 commands reproduce."""
     with initialize_config_dir(str(REPO / "conf"), version_base="1.3"):
         cfg = compose("config", overrides=["env=fluid_cube", "experiment=standard"])
         fp32 = compose("config", overrides=["env=fluid_cube", "experiment=standard", "trainer.precision=32-true"])
@@ -243,21 +239,21 @@ def test_the_standard_prior_and_visual_stage_train_in_bf16_where_it_is_fast_and_
                                                       ("mass_rope", "00:00:58:00", "00:00:25:00"), ("fluid_cube", "00:00:58:00", "00:00:25:00")])
 def test_the_standard_split_of_minutes_between_prior_and_module_is_per_env(env, prior, module):
     """RigidFall's module needs 1,500+ steps before P learns, which its 25-min cap did not reach on a
-    2-core CPU: its env config moves 38 of the prior's 58 minutes to the module (session 69); the
+    2-core CPU: its env config moves 38 of the prior's 58 minutes to the module; the
     other envs keep the split their tables were measured with. The step caps are the same for all."""
     with initialize_config_dir(str(REPO / "conf"), version_base="1.3"):
         cfg = compose("config", overrides=[f"env={env}", "experiment=standard"])
     assert (cfg.trainer.max_time, cfg.model.inference.trainer.max_time) == (prior, module)
     assert (cfg.trainer.max_steps, cfg.model.inference.trainer.max_steps) == (78300, 3000)
-    # what the Trainer is given (until session 70 the module's cap resolved apart from env and read 25 minutes)
+    # what the Trainer is given, not only what the config says
     given = {stage: trainer_kwargs(cfg, cfg.model[stage]) for stage in ("dynamics", "inference")}
     assert (given["dynamics"]["max_time"], given["inference"]["max_time"]) == (prior, module)
     assert (given["dynamics"]["max_steps"], given["inference"]["max_steps"]) == (78300, 3000)
 
 
 def test_the_standard_preset_in_steps_runs_the_reference_machines_steps_without_a_clock():
-    """experiment=standard_steps (session 70): each stage of RigidFall's standard preset runs the steps it
-    reached in its minutes on the machine its README numbers come from (sessions 68-69), with the noise-free
+    """experiment=standard_steps: each stage of RigidFall's standard preset runs the steps it
+    reached in its minutes on the reference machine (docs/results.md), with the noise-free
     finish and the visual anneal over the same shares as on the clock, on the standard preset's dataset;
     on an env without reference steps reading a step budget fails, naming the key it lacks."""
     with initialize_config_dir(str(REPO / "conf"), version_base="1.3"):
@@ -279,7 +275,7 @@ def test_the_standard_preset_in_steps_runs_the_reference_machines_steps_without_
 def test_a_task_whose_config_cannot_resolve_fails_before_it_reads_or_writes_anything(tmp_path):
     """run_task resolves the whole composed config first: standard_steps on MassRope (no reference steps)
     fails for a single stage as for the pipeline, naming the key, before data are generated or loaded
-    (a stage's trainer was resolved only once built, after its data were read: session 70's note).
+    (a stage's trainer is otherwise resolved only once built, after its data were read).
     Every task resolves on the standard preset, and the pipeline on every other env x preset."""
     root = tmp_path / "root"
     with initialize_config_dir(str(REPO / "conf"), version_base="1.3"):
@@ -302,7 +298,7 @@ def test_a_task_whose_config_cannot_resolve_fails_before_it_reads_or_writes_anyt
 
 def test_a_resume_whose_checkpoint_already_spent_max_time_is_warned_with_the_total_to_pass(tmp_path, caplog):
     """Lightning's Timer restores the time already spent, so max_time bounds the total over resumed
-    runs: a resume under a max_time the checkpoint has spent takes no step (session 76). The warning
+    runs: a resume under a max_time the checkpoint has spent takes no step. The warning
     reads the restored Timer at fit start."""
     cut = fit(0.25, max_steps=1000, max_epochs=-1, max_time={"seconds": 1})
     cut.save_checkpoint(tmp_path / "cut.ckpt")

@@ -57,7 +57,7 @@ def test_a_training_keeps_its_plan_when_the_plan_fits_and_its_share_when_it_does
 
 
 def test_a_late_run_catches_up_in_its_trainings_and_ends_within_its_total():
-    """The fp32 VM's main job of session 71 (generate 46.5 s, the prior 7 s past its max_time, the
+    """The fp32 VM's main job of (generate 46.5 s, the prior 7 s past its max_time, the
     identifiability sweep 24 s, ...) replayed on the budget's clock: 9 min 30 s less 60 s reserved."""
     clock = Clock()
     budget = TimeBudget(570.0, QUICK, reserve_s=60.0, floor=0.25, clock=clock)

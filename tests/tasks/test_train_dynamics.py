@@ -311,8 +311,7 @@ def test_learning_rate_decays_by_global_step_across_a_time_capped_fit_and_its_re
     """A fit cut by trainer.max_time mid-epoch (steps slowed to >= 0.4 s, cap 2 s: 1 to 5 of the 6
     steps of an epoch) and resumed decays at step 6, as an uninterrupted fit. (Lightning counts the
     cut epoch as ended without a scheduler step; with a per-epoch scheduler, where the decay then
-    fell depended on how each resumed fit counted its batches: the session-14 GPU runs, each cut
-    by max_time, ran 42k steps, 1.6 epochs, at the initial rate.)"""
+    fell depended on how each resumed fit counted its batches.)"""
     import time
 
     from vgpl.models.dynamics_prior import DynamicsPrior
@@ -440,7 +439,7 @@ def test_identifiability_gate_writes_its_sweep_and_warns_or_stops(trained, caplo
 def test_a_type_whose_true_label_loses_in_most_scenes_is_named():
     from vgpl.tasks.identifiability import unpreferred_labels
 
-    shares = {"rigidness_truth_preferred/cube": 0.30, "rigidness_truth_preferred/fluid": 0.95}  # RigidFall seed 1's prior: 0.30 (session 73)
+    shares = {"rigidness_truth_preferred/cube": 0.30, "rigidness_truth_preferred/fluid": 0.95}  # RigidFall seed 1's prior: 0.30
     assert unpreferred_labels(shares, ["cube", "fluid"]) == {"cube": 0.30}
     assert unpreferred_labels({"rigidness_truth_preferred/cube": 0.5}, ["cube"]) == {}  # half the scenes: not a warning
 

@@ -96,7 +96,7 @@ def truth_proposals(positions: torch.Tensor, instance: torch.Tensor, n_instances
     """The recorded particles as proposals: what a perfect visual prior would give, or, with
     ``noise_std`` > 0, one whose every coordinate in every frame is off by independent Gaussian
     noise of that std (metres). Not the paper: a diagnostic that tells the errors of the visual
-    stage from those of the inference module (README, Design).
+    stage from those of the inference module (docs/design.md).
 
     Args: positions [R, T, N, 3], instance [N] (ids < n_instances). Returns positions [R, T, N, 3],
     logits [R, T, N, M] (TRUTH_LOGIT on the true instance, 0 on the others).

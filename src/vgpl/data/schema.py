@@ -1,4 +1,4 @@
-"""The HDF5 schema of a dataset shard (see DESIGN.md) and its validation.
+"""The HDF5 schema of a dataset shard (docs/data.md) and its validation.
 
 One file per shard of a split. Every problem with a file is reported as one
 :class:`DatasetError` that names the file and the key and says what was expected.

@@ -7,9 +7,8 @@ scene, the value of lowest rollout L1: the "oracle" estimate. Its error is a flo
 inference module can reach with the same window and prior.
 
 The oracle says whether the loss has its minimum at the truth; ``param_gradient_agreement`` says
-whether gradient descent on P, from a wrong value, is pushed towards it. On RigidFall (session 15)
-the loss of windows that start after the cubes land has its gradient in P pointing the right way
-no more often than a coin, although the minimum of a window from frame 0 is at the truth.
+whether gradient descent on P, from a wrong value, is pushed towards it: a window can have its
+minimum at the truth and still a gradient that points the right way no more often than a coin.
 """
 
 from __future__ import annotations
@@ -42,19 +41,16 @@ def oracle_param_sweep(model, positions, grouping, rigidness, params, planes, ki
     """Sweep each parameter over ``grid`` evenly spaced values of its range, then, with ``refine`` > 1,
     over ``refine`` evenly spaced values within one grid step either side of each scene's argmin.
 
-    A coarse grid alone misreads the prior: session 36's RigidFall prior read 4.1% on 9 points
-    (the grid's own error on those 20 videos: 3.8%) and 2.5% on 81; 9 + 9 coarse-to-fine values cost
-    18 rollouts for the resolution of a 33-point grid (its own error 0.8% for uniform truth).
+    A coarse grid alone misreads the prior, whose own error can be most of the grid's; 9 + 9
+    coarse-to-fine values cost 18 rollouts for the resolution of a 33-point grid.
 
     Args: model, a DynamicsPrior (``to_physical``, ``normalise_params``, ``disp_std``);
     positions [B, H + n_steps, N, 3] true; grouping [B, N, M]; rigidness [B, M]; params [B, P]
     physical, true; planes [B, H + n_steps, K, 4]; kinematic [N] bool. ``chunk``: scenes rolled
-    at a time (the same numbers; bounded memory: session 49's 100 MassRope videos in one batch took
-    over 28 min for three sweeps, 20 took 5.7).
+    at a time (the same numbers, bounded memory).
     Returns: ``oracle_params`` [B, P] (physical, the argmin per scene), ``oracle_param_mae_pct`` [P]
     (its error, % of range), ``oracle_param_bias_pct`` [P] (its mean signed error, oracle - truth: a
-    prior that moves too little for the true P asks for a stronger one; session 36's RigidFall prior
-    reads -2.45 of its 2.45% MAE so), ``grid_param_mae_pct`` [P] (what a perfect prior's argmin scores with
+    prior that moves too little for the true P asks for a stronger one), ``grid_param_mae_pct`` [P] (what a perfect prior's argmin scores with
     this grid and refinement: the truth snapped to the nearest grid value, then to the nearest
     refined value around it; 25 / (grid - 1) % for uniform truth without refinement, so 3.1% of a
     9-point oracle is the grid's own), ``midpoint_param_mae_pct`` [P] (a constant guess at the

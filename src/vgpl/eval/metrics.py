@@ -1,4 +1,4 @@
-"""The paper's metrics (REFERENCE.md): parameter error as % of range, position MSE x 1e4,
+"""The paper's metrics (docs/paper.md): parameter error as % of range, position MSE x 1e4,
 probability of the correct rigidness label."""
 
 from __future__ import annotations

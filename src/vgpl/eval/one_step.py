@@ -1,6 +1,6 @@
 """One step of a dynamics prior from the true history, and how its acceleration compares with the
 truth's: a prior whose one-step motion reacts too little to the forces (a slope under 1) biases the
-parameters that a rollout through it fits (history noise teaches that; README: design, session 41).
+parameters that a rollout through it fits (history noise teaches that; docs/design.md).
 """
 
 from __future__ import annotations

@@ -2,7 +2,7 @@
 test videos, and a few diverging videos can decide a mean. This pairs the videos (same rollout ids)
 and bootstraps the mean difference, so a table can say when a gap is noise. Beside it, an exact
 sign test asks the question a heavy tail cannot swing: on how many videos is VGPL the lower, and
-could a coin have done as well? (session 81: RigidFall's T+20 errors, mean 92 against median 42.)"""
+could a coin have done as well? (A heavy-tailed error can tie in the mean and not in most videos.)"""
 
 from __future__ import annotations
 

@@ -139,7 +139,7 @@ def param_response(model, scene: Scene, rollouts: Rollouts, start: int, frames: 
         recorded = positions[:, h:] / scale
         # at the recorded parameters themselves: their float32 round trip through normalise_params /
         # to_physical moves FluidCube's viscosity by ~1e-6 relative, which its fluid turns into
-        # centimetres within 14 frames (chaos, not a restart error; docs/experiments.md, session 63)
+        # centimetres within 14 frames (chaos, not a restart error)
         restart_error = float((engine_at(params) - positions[:, h:]).abs().max())
         return ParamResponse(
             engine=(engine(centre + shift) - engine(centre - shift)) / (2 * delta),

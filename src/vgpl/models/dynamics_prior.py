@@ -1,35 +1,23 @@
 """DynamicsPrior: DPI-Net (Li et al. 2019) as used by VGPL, on radius graphs with message passing.
 
-Input: the last ``history`` positions of every particle, soft grouping G [B, N, M], rigidness
-Q [B, M], physical parameters P [B, P] (all may be estimates; gradients flow to them), boundary
-planes and which particles are kinematic. Output: the normalised displacement of every particle
-to the next frame: a per-particle (non-rigid) head and a per-instance rigid head (rotation about
-the instance centroid + translation), blended by each particle's rigidness q_i = sum_m G_im Q_m.
+Input: the last ``history`` positions of every particle [B, H, N, 3] (metres), soft grouping
+G [B, N, M], rigidness Q [B, M], physical parameters P [B, P] (physical units; all may be
+estimates, gradients flow to them), boundary planes and which particles are kinematic. Output: the
+normalised displacement of every particle to the next frame [B, N, 3]: a per-particle (non-rigid)
+head and a per-instance rigid head (rotation about the instance centroid + translation), blended by
+each particle's rigidness q_i = sum_m G_im Q_m. ``rigid_head``: ``pooled`` (the paper: an MLP on the
+instance's mean embedding gives a quaternion and a translation), ``projected`` (per-particle
+displacements, moved by their momentum as one rigid body) or ``none`` (no rigid-body constraint:
+every particle free, Q ignored).
 
-With ``action_lookahead`` the model is action-conditioned: the boundary planes and kinematic
-particles (the actuators, whose motion is the action and comes from the data) enter with their
-displacements up to the frame being predicted, not only up to the current one. The actuators of
-FluidCube and MassRope follow a random walk whose next kick cannot be read from their history
-(README: design).
-
-With ``rollout_steps`` k > 1 the training loss rolls the model k steps from the (noisy) history
-on its own predictions, gradients through every step, and averages the position error over them
-(in units of the displacement std; k = 1 is the usual one-step loss, exactly). A prior trained
-one step at a time can drift over the inference module's 15-frame window in a way that depends
-on P (MassRope, session 7: a stiffer rope damps the drift), which a multi-step loss penalises.
-
-The history noise (``noise``, learning_to_simulate's) makes rollouts robust but biases the
-one-step prediction: from a noisy history the best guess of a fast velocity is a smaller one, so a
-prior trained with noise to the end moves too little. Session 36's RigidFall prior reproduces 0.96
-of the true free-fall acceleration (0.94 by frame 13), and its rollout fits a gravity about 2.5% of
-the range too strong, the bias of every inference module trained through it. With
-``noise_free_steps`` K > 0 the last K of trainer.max_steps (or the same share of a
-trainer.max_time, whichever comes first, as ``lr_anneal_steps``) train without it; a 10-minute
-noise-free fine-tune of that prior (10k steps) read 1.006 and halved the oracle's error
-(docs/experiments.md: session 41); the standard preset trains the last 13,000 of 78,300 steps so,
-and RigidFall's prior from nothing reads 0.993 with an unbiased oracle of 0.83% (session 42). MassRope's
-prior with the noise to the end already moves its sphere right (acceleration slope 1.006), and its
-stiffness oracle moved more between checkpoints than the finish moved it (session 43).
+Options beyond the paper, each off in ``experiment=paper`` (docs/paper.md, Departures):
+``action_lookahead`` feeds the actuators' (planes', kinematic particles') motion up to the predicted
+frame; ``rollout_steps`` k > 1 rolls the training loss k steps on the model's own predictions (the
+mean position error over them, in units of the displacement std; k = 1 is the one-step loss);
+``noise_free_steps`` K > 0 trains the last K of trainer.max_steps (or the same share of a
+trainer.max_time) without history noise, which otherwise biases the one-step prediction towards
+too little motion; ``history_noise`` is ``random_walk`` (learning_to_simulate) or ``independent``
+(the authors' code); ``rigid_dropout`` shows an instance as non-rigid in training with this chance.
 """
 
 from __future__ import annotations
@@ -206,7 +194,7 @@ class DynamicsPrior(NormalisationBuffers, L.LightningModule):
 
         ``pooled`` (the paper): an MLP on the instance's mean embedding gives a quaternion and a
         translation. ``projected``: an MLP gives every particle a displacement, and the instance moves
-        with their linear and angular momentum (nn.rigid.momentum_projection; README: design).
+        with their linear and angular momentum (nn.rigid.momentum_projection; docs/design.md).
         """
         if self.hparams.rigid_head == "projected":
             return momentum_projection(pos, grouping, self.to_displacement(self.rigid_head(particle)))
@@ -295,9 +283,8 @@ class DynamicsPrior(NormalisationBuffers, L.LightningModule):
     def on_train_batch_start(self, batch, batch_idx) -> None:
         """The learning rate is lr x lr_decay ** (epochs completed, counted in optimiser steps): a
         function of global_step alone, so a fit stopped by trainer.max_time and resumed decays at the
-        same steps as an uninterrupted one. (A per-epoch scheduler does not step when max_time cuts an
-        epoch, and where it stepped after a resume depended on how the resumed fit counted batches:
-        never in 42.6k steps of the session-14 GPU runs, twice by step 7 in a small test.)"""
+        same steps as an uninterrupted one (a per-epoch scheduler does not step when max_time cuts an
+        epoch, and where it stepped after a resume depended on how the resumed fit counted batches)."""
         if self.hparams.lr_decay == 1.0:
             return
         set_learning_rate(self, self.hparams.lr * self.hparams.lr_decay ** (self.global_step // self.trainer.num_training_batches))

@@ -1,42 +1,34 @@
 """InferenceModule: from particle proposals over T observed frames, infer a refinement dX of
-every particle in every frame, the rigidness Q of every instance and the physical parameters P.
+every particle in every frame [B, T, N, 3] (metres), the rigidness Q of every instance [B, M] and
+the physical parameters P [B, P].
 
-It is trained through the frozen DynamicsPrior: the loss is the L1 between the trajectory the
-prior predicts from (X' + dX, G, Q, P) and the ground truth (plus a direct L1 of the refined
-positions, as the original code adds). ``trajectory_start="truth"`` rolls the trajectory from the
-true first frames instead, so that it trains Q and P and the refinement learns from its direct L1
-alone: from noisy starting frames the trajectory loss is lowest at the most damping parameter
-whatever the scene (measured; README, Design). ``"both"`` rolls from each, P learning from the
-true start only and dX through the refined one. ``tail_horizon`` k > 0 adds an L1 of k frames
-rolled from the last ``history`` refined frames, where the evaluation starts (not the paper);
-``tail_detach_params`` keeps P out of it, as "both" keeps P out of the refined start.
-``param_rotation`` shows the parameter encoder each training scene turned about the vertical
-axis at random, a symmetry of RigidFall (not the paper: against the train/test gap
-of 300 training videos). ``lr_anneal_steps`` K > 0 anneals every rate to zero over the last K steps (or the same share of
-a trainer.max_time; ``AnnealedLearningRate``, as VisualPrior's; not the paper).
-Nothing supervises Q or P directly (``rigid_correct/<type>`` and ``param_mae_pct`` are logged
-against the truth, never trained on), unless
-``param_weight`` > 0 adds an L1 on P (not the paper: a shortcut for presets of a few CPU
-minutes, whose dynamics prior is too weak to ground P through; README).
+It is trained through the frozen DynamicsPrior: the loss is the L1 between the trajectory the prior
+predicts and the ground truth, plus a direct L1 of the refined positions (the authors' code adds
+it; ``refine_weight``). ``separate_param_net`` gives P its own encoder: the paper's two networks,
+one for dX and Q, one for P. ``training_scheme`` says what each rollout is fed:
 
-``rigidness_estimator`` says what Q is to the prior. ``blend`` (the paper): Q is the prior's
-blend weight between its rigid and per-particle heads, and learns by the gradient through it. A
-blend of two fair predictions beats either (FluidCube's cube: the prior's rollout L1 is lowest at
-Q = 0.5; README: design), so that loss pulls an object both heads move well to 0.5 whatever its
-label. ``bernoulli`` (not the paper): Q is the probability that an instance is rigid, the prior
-sees the label Q > 0.5, and Q learns from the expected trajectory L1 over the label,
-Q L1(rigid) + (1 - Q) L1(free), exact per instance: every instance's label is flipped in turn in
-one more rollout of the trajectory that trains P (no gradient; ``flipped_label_errors``,
-``expected_rigidness_error``). That loss is logged as train/ and val/rigidness and adds to val/loss.
-From nothing ``bernoulli`` drives FluidCube's cube to a wrong label (session 59) where a blend-trained
-module fine-tuned with it reads both objects (session 57): ``bernoulli_from_step`` k trains with the
-blend for k steps, then with ``bernoulli``, in one run (the checkpoint records the estimator it ended with).
+- ``paper``: each network rolls the prior with the true values of the other's outputs. dX and Q
+  roll from the refined frames with the true P; P rolls from the true frames with the true G and Q.
+- ``joint``: every rollout takes the module's own G, Q and P. ``trajectory_start`` then says where
+  it starts: ``refined`` (the refined first frames), ``truth`` (the true ones: P and Q learn, dX
+  only from its direct L1) or ``both`` (P from the true start, dX through the refined one).
 
-``proposal_noise`` s > 0 (not the paper) adds independent Gaussian noise to every proposal of every
-training window, of a std drawn per window uniformly in [0, s] metres (``add_proposal_jitter``):
-P read from the proposals' frame-to-frame motion is otherwise tied to one visual prior's jitter.
-FluidCube (session 60): 1 mm of added jitter moved a module's viscosity bias by 26 points of the
-range (+0.6 to -25.9), static offsets of 2 mm by less than 0.1; fine-tuned with s = 2 mm, by 5.
+Options beyond the paper (docs/paper.md, Departures; docs/configuration.md): ``tail_horizon`` k > 0
+adds an L1 of k frames rolled from the last ``history`` refined frames, where the evaluation starts
+(``tail_detach_params`` keeps P out of it); ``param_rotation`` shows the parameter encoder each
+training scene turned about the vertical axis (RigidFall's symmetry); ``lr_anneal_steps`` anneals
+every rate to zero over the last K steps; ``param_weight`` > 0 adds a supervised L1 on P;
+``proposal_noise`` s > 0 jitters every training proposal by a std drawn per window in [0, s] metres.
+
+``rigidness_estimator`` says what Q is to the prior. ``blend`` (the paper): Q is the prior's blend
+weight between its rigid and per-particle heads, learnt through the gradient of the rollout.
+``bernoulli``: Q is the probability that an instance is rigid, the prior sees the label Q > 0.5,
+and Q learns from the expected trajectory L1 over the label, Q L1(rigid) + (1 - Q) L1(free), exact
+per instance (``flipped_label_errors``, ``expected_rigidness_error``). ``bernoulli_from_step`` k
+trains with the blend for k steps, then with ``bernoulli``, in one run.
+
+Nothing supervises Q or P directly unless ``param_weight`` > 0: ``rigid_correct/<type>`` and
+``param_mae_pct`` are logged against the truth, never trained on.
 """
 
 from __future__ import annotations
@@ -350,7 +342,7 @@ class InferenceModule(AnnealedLearningRate, NormalisationBuffers, L.LightningMod
         p_error = (out["params_normalised"] - self.normalise_params(batch["params"])).abs()
         losses["loss"] = (losses.get("one_step", 0.0) + losses.get("rollout", 0.0) + losses.get("rollout_from_truth", 0.0)
                           + losses.get("tail", 0.0) + losses.get("rigidness", 0.0) + self.hparams.refine_weight * losses["refine"])
-        if self.hparams.param_weight > 0:  # NOT the paper: a supervised shortcut for CPU-minute presets (README)
+        if self.hparams.param_weight > 0:  # not the paper: a supervised shortcut for CPU-minute presets
             losses["loss"] = losses["loss"] + self.hparams.param_weight * p_error.mean()
         losses["param_mae_pct"] = (p_error * 50.0).mean()
         if self.hparams.rigidness and "rigid" in batch:  # Q's reading per object type, as task=evaluate reports it
@@ -394,7 +386,7 @@ class InferenceModule(AnnealedLearningRate, NormalisationBuffers, L.LightningMod
 
     def configure_optimizers(self):
         """Adam at ``lr``; the parameter pathway at ``param_lr`` when set (Adam moves a weight by
-        about its rate a step; one FluidCube trial of 1e-3 on a shared encoder's head did not help, README)."""
+        about its rate a step)."""
         if self.hparams.param_lr is None:
             return torch.optim.Adam(self.parameters(), lr=self.hparams.lr)
         pathway = self.param_pathway()

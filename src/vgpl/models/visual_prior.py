@@ -1,6 +1,6 @@
 """VisualPrior: a stack of RGB frames -> particle positions and grouping logits of each frame.
 
-The perception stage of VGPL (REFERENCE.md). Particle slots are in simulator order, so the
+The perception stage of VGPL (docs/paper.md). Particle slots are in simulator order, so the
 heads regress every particle directly (no matching). Positions are predicted in normalised
 units (training-split mean and std, stored with the checkpoint) and returned in metres by
 ``propose``.

@@ -228,7 +228,7 @@ def rotation_y(angle: float) -> np.ndarray:
 
 
 def random_walk_1d(rng: np.random.Generator, n_steps: int, dt: float, noise: float, spring: float, damping: float) -> tuple[np.ndarray, np.ndarray]:
-    """Mean-reverting random walk of a kinematic actuator (REFERENCE: v += U(-a, a) - k x per frame).
+    """Mean-reverting random walk of a kinematic actuator (as the original scenes: v += U(-a, a) - k x per frame).
 
     Returns positions and velocities, each [n_steps]; position 0 and velocity 0 at frame 0.
     """

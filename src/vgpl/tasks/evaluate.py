@@ -57,15 +57,14 @@ def write_tables(records: list[dict], out: Path, notes: str = "") -> str:
 def inference_checkpoint(cfg: DictConfig) -> Path:
     """``ckpt.inference`` (the full module, which no_refinement and no_params switch at evaluation
     time), or ``ckpt.inference_no_rigidness`` under ablation=no_rigidness (its own module); unset,
-    the stage's last.ckpt under paths.ckpt_dir. (Before session 41 ``ckpt.inference`` was silently
-    passed over under no_rigidness for the default path, which held another prior's module.)"""
+    the stage's last.ckpt under paths.ckpt_dir."""
     return stage_checkpoint(cfg, inference_stage(cfg.ablation))
 
 
 def warn_other_prior(inference_path: Path, inference_cfg: DictConfig, dynamics_path: Path) -> str | None:
     """The warning (also logged) when the inference module at ``inference_path`` was trained through
-    another dynamics prior than ``dynamics_path``: its P is fitted to that prior's rollout (session 41:
-    a module from a biased prior read gravity 33% evaluated through an unbiased one); None when they
+    another dynamics prior than ``dynamics_path``: its P is fitted to that prior's rollout, and
+    reads P off through another; None when they
     agree or its config does not say."""
     trained = stage_checkpoint(inference_cfg, "dynamics") if inference_cfg.get("paths") else None
     if trained is None or Path(trained).resolve() == Path(dynamics_path).resolve():

@@ -3,8 +3,8 @@
 
 The inference module can only ground P through the prior's rollout loss. When the per-scene
 argmin of that loss over P (the "oracle", ``vgpl.eval.identifiability``) is no better than a
-constant mid-range guess, training the inference module cannot ground P either: on MassRope
-(session 7) that sweep took 4 minutes and would have saved 42 minutes of inference training.
+constant mid-range guess, training the inference module cannot ground P either, and the sweep
+costs minutes where the training costs much more.
 """
 
 from __future__ import annotations
@@ -123,7 +123,7 @@ def rigidness_metrics(model: DynamicsPrior, scene: Scene, test: Rollouts, cfg: D
     """``rigidness_sweep`` of each object type's Q over ``values`` evenly spaced values in [0, 1], over
     ``cfg.model.inference``'s window (from ``start_frame`` on) from the true frames and P of the first ``max_rollouts`` test
     rollouts: ``rollout_l1_over_rigidness/<type>`` [values], ``rigidness_truth_preferred/<type>`` and
-    ``rigidness_oracle_correct/<type>`` (README: design)."""
+    ``rigidness_oracle_correct/<type>`` (docs/design.md)."""
     check_rigidness_grid(values)
     inf = cfg.model.inference
     window = inference_window(scene, test, inf.observed, inf.net.horizon, start_frame, max_rollouts)
@@ -245,12 +245,11 @@ def check_identifiability(cfg: DictConfig) -> dict:
             raise IdentifiabilityError(message)
         log.warning(message)
     wrong = unpreferred_labels(metrics, types)
-    if wrong:  # a warning only: Q still trains, but to the blend this loss prefers (docs/experiments.md, sessions 73-74)
+    if wrong:  # a warning only: Q still trains, but to the blend this loss prefers 
         detail = "; ".join(f"{t}: the true label rolls better in {100 * share:.0f}% of scenes" for t, share in wrong.items())
         log.warning(f"{path}: the prior's rollout loss does not prefer the true rigidness ({detail}). The inference module learns Q "
                     "only through that loss, so Q will read the blend it prefers, and VGPL w/o rigidness can match or beat VGPL at "
-                    "T+20. On RigidFall the raw weights' preference swung from 0% to 100% of scenes between checkpoints of one run at "
-                    "a constant learning rate, and their moving average preferred the true label in 100% (docs/experiments.md, "
-                    "sessions 73-74): train the prior with model.dynamics.ema.decay=0.999 (RigidFall's standard preset does) and "
+                    "T+20. At a constant learning rate a prior's raw weights can swing between checkpoints, and their moving average "
+                    "steadies them: train the prior with model.dynamics.ema.decay=0.999 (RigidFall's standard preset does) and "
                     "sweep it again (task=evaluate_dynamics task.rigidness_grid=5)")
     return result

@@ -39,9 +39,8 @@ def trainer_kwargs(cfg: DictConfig, stage_cfg: DictConfig) -> dict:
     """The Trainer's arguments for a stage: the ``trainer`` group, overridden by ``stage_cfg.trainer``.
 
     The stage's trainer is resolved where it sits in ``cfg``, so that its interpolations reach the
-    whole config (``${oc.select:env.standard_inference_max_time,...}``); a copy made with
-    OmegaConf.create would resolve them against itself and fall back to the default (until
-    session 70 RigidFall's 63-minute module cap read as 25 minutes so)."""
+    whole config (``${oc.select:...}`` of another group); a copy made with OmegaConf.create would
+    resolve them against itself and fall back to the default."""
     stage_trainer = stage_cfg.get("trainer") or {}
     if isinstance(stage_trainer, DictConfig):
         stage_trainer = OmegaConf.to_container(stage_trainer, resolve=True)
@@ -100,7 +99,7 @@ class SpentTimeWarning(Callback):
 
     Lightning's Timer restores the training time spent before ``on_fit_start``, so ``max_time``
     bounds the total over every resumed run, not the new one: a resume with ``max_time=00:00:12:00``
-    after 60 min stopped at once, 0 steps (session 76). That is also what a finished stage of a
+    after 60 min stops at once, 0 steps. That is also what a finished stage of a
     resumed pipeline does, hence a warning and not an error. The Timer's own numbers are read
     (``training_clock``), not the checkpoint a second time."""
 
@@ -158,7 +157,7 @@ def checkpointing(folder: str | Path, monitor: str) -> list[ModelCheckpoint]:
     last.ckpt has its own unmonitored callback: Lightning's ``save_last`` writes it only at a
     validation that also saved a top-k checkpoint, so once ``monitor`` stopped improving a kill
     sent ``ckpt_path=last`` back to the last improvement. The version counter is off: when a run
-    resumed from a checkpoint made in another folder (a copy, to train on; sessions 28-29) it wrote
+    resumed from a checkpoint made in another folder (a copy, to train on) it wrote
     ``last-v1.ckpt`` and ``best-v1.ckpt`` beside the copy's files. After such a copy Lightning does
     not carry the best score over, so best.ckpt is the resumed run's best."""
     return [ModelCheckpoint(dirpath=folder, filename="best", monitor=monitor, enable_version_counter=False),
@@ -183,7 +182,7 @@ def validate_final(trainer: L.Trainer, model: L.LightningModule, datamodule: L.L
     that ``trainer.callback_metrics`` describe last.ckpt (measured at ``trainer.global_step``).
 
     Why: validation runs every ``val_check_interval`` steps, so a fit of 1,822 steps validated at
-    1,500 reported step 1,500's numbers beside "steps: 1822" (session 31). The extra validation is
+    1,500 would report step 1,500's numbers beside "steps: 1822". The extra validation is
     logged to TensorBoard at the final step; it saves no checkpoint (fit already wrote last.ckpt)."""
     seen = next((c for c in trainer.callbacks if isinstance(c, LastValidation)), None)
     if seen is None or seen.step != trainer.global_step:

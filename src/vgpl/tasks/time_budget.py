@@ -3,7 +3,7 @@
 Each training stops at its ``trainer.max_time``, but the work between the trainings (generating
 the videos, the identifiability sweep, exporting proposals, the evaluations) has no clock: on a
 slow machine it alone can push a run that fits its trainings' minutes past the total a preset
-promises (the quick preset's 10 minutes: 9 min 46 s on a 2-core fp32 VM, session 71). The budget
+promises (the quick preset's 10 minutes). The budget
 gives each training, before it starts, at most its planned max_time scaled by
 
     (total - elapsed - reserve_s) / (the planned max_time of this and every later training),

@@ -123,7 +123,7 @@ def held_out_videos(trained: DictConfig, module_videos: int | None) -> int:
     """The first training video the visual prior (its training config ``trained``) learned from;
     warns when it learned from any of the inference module's first ``module_videos`` (None: all):
     the proposals of those can be cleaner than the test videos', and a module that reads P from
-    them is then offset on the test ones (FluidCube, session 59)."""
+    them is then offset on the test ones."""
     first = int(trained.model.visual.get("first_rollout", 0))
     if module_videos is None or first < module_videos:
         fix = (f"; model.visual.first_rollout={module_videos} holds them out" if module_videos is not None

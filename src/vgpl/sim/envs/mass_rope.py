@@ -10,7 +10,7 @@ The rope starts at ``u`` times its static stretch, ``u ~ U(start_stretch)`` (def
 its rest length to twice its sag), at rest, so the sphere bounces about its equilibrium at the
 rope's own frequency. With ``start_stretch=(1, 1)`` every rope starts at equilibrium, its stretch is
 a function of the stiffness, and a model of the motion can read the stiffness off the positions and
-ignore its stiffness input: the learned prior then gives no gradient in stiffness (README: Design).
+ignore its stiffness input: the learned prior then gives no gradient in stiffness (docs/design.md).
 """
 
 from __future__ import annotations

@@ -1,0 +1,40 @@
+"""The project speaks of itself, not of the runs that built it: no work-session numbers, run
+shorthands ("s42") or issue numbers in the README, docs, code, configs or tests; and no citation of
+files that are not in the repository."""
+
+from __future__ import annotations
+
+import re
+
+from tests.conftest import REPO
+
+HISTORY = re.compile(r"\bsessions?\b|\bs\d{1,3}(?:-\d{1,3})?\b|\bissues? #?\d+\b|(?-i:\bREFERENCE\.md|\bDESIGN\.md)", re.IGNORECASE)
+ALLOWED = re.compile(r"start_new_session")  # subprocess.Popen's argument, not a work session
+
+
+def project_files() -> list:
+    files = [REPO / "README.md", REPO / "run.py", REPO / "pyproject.toml"]
+    for folder, patterns in (("docs", ("*.md",)), ("src", ("*.py",)), ("conf", ("*.yaml",)), ("tests", ("*.py",)),
+                             ("benchmarks", ("*.py", "*.md")), ("notebooks", ("*.ipynb",)), ("scripts", ("*.sh", "*.py"))):
+        for pattern in patterns:
+            files += sorted((REPO / folder).rglob(pattern))
+    return [f for f in files if f.is_file() and "egg-info" not in str(f)]
+
+
+def test_no_run_history_or_outside_citations():
+    hits = []
+    for path in project_files():
+        if path == REPO / "tests" / "test_no_run_history.py":
+            continue
+        for number, line in enumerate(path.read_text().splitlines(), 1):
+            if HISTORY.search(ALLOWED.sub("", line)):
+                hits.append(f"{path.relative_to(REPO)}:{number}: {line.strip()[:120]}")
+    assert len(project_files()) > 100
+    assert not hits, f"{len(hits)} lines name a work session, run or issue:\n" + "\n".join(hits[:60])
+
+
+def test_the_pattern_catches_what_it_is_for():
+    for text in ("session 80's run", "Sessions 23-24", "(s81)", "s46-47", "issue 4", "see REFERENCE.md"):
+        assert HISTORY.search(text), text
+    for text in ("docs/design.md", "sessions_dir", "the s-wave", "step s", "shape s1x", "start_new_session=True"):
+        assert not HISTORY.search(ALLOWED.sub("", text)), text
