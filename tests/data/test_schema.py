@@ -8,8 +8,8 @@ import pytest
 
 from vgpl.data.schema import DatasetError, validate
 from vgpl.data.shard import read_shard, write_shard
-from vgpl.tasks.generate import plan_shards, scene_attrs, simulate_shard
 from vgpl.sim.envs import make_scene
+from vgpl.tasks.generate import plan_shards, scene_attrs, simulate_shard
 
 
 @pytest.fixture(scope="module")

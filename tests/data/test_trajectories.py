@@ -5,11 +5,11 @@ import pytest
 import torch
 
 from vgpl.data.schema import DatasetError
+from vgpl.data.shard import write_shard
 from vgpl.data.trajectories import NormStats, TrajectoryDataModule, TrajectoryWindows, load_split
 from vgpl.models.dynamics_prior import add_history_noise
 from vgpl.sim.envs import make_scene
 from vgpl.tasks.generate import plan_shards, scene_attrs, simulate_shard
-from vgpl.data.shard import write_shard
 
 
 @pytest.fixture(scope="module")

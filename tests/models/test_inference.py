@@ -11,13 +11,13 @@ from torch.utils.data import DataLoader
 
 from tests.conftest import REPO
 from tests.models.learning_rate_callbacks import BatchClock, LearningRates
+from vgpl.data.proposals import propose_videos
 from vgpl.data.vertical_symmetry import about_vertical
 from vgpl.graph import own_radius_graph
 from vgpl.models.dynamics_prior import DynamicsPrior
 from vgpl.models.inference import InferenceModule
 from vgpl.models.step_learning_rate import annealed_fraction
 from vgpl.models.visual_prior import VisualPrior
-from vgpl.data.proposals import propose_videos
 from vgpl.tasks.pipeline import ABLATIONS, ablation_config
 
 

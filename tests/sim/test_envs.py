@@ -42,9 +42,8 @@ def test_particle_counts_per_object():
 def test_unknown_env_is_named():
     with pytest.raises(ValueError, match="unknown env 'water'.*fluid_cube"):
         make_scene("water")
-    with initialize_config_dir(str(REPO / "conf"), version_base="1.3"):
-        with pytest.raises(MissingConfigException, match="water"):
-            compose("config", overrides=["env=water"])
+    with initialize_config_dir(str(REPO / "conf"), version_base="1.3"), pytest.raises(MissingConfigException, match="water"):
+        compose("config", overrides=["env=water"])
 
 
 def test_parameter_range_low_above_high_is_named():

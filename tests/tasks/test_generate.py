@@ -8,10 +8,10 @@ import numpy as np
 import pytest
 from hydra import compose, initialize_config_dir
 
+import vgpl.tasks.generate as gen
 from tests.conftest import REPO
 from vgpl.data.schema import DatasetError, validate
 from vgpl.data.shard import read_shard
-import vgpl.tasks.generate as gen
 from vgpl.tasks.generate import generate, plan_shards
 
 

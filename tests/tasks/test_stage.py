@@ -18,8 +18,17 @@ from vgpl.hardware import fast_precision
 from vgpl.models.step_learning_rate import annealed_fraction
 from vgpl.tasks import TASKS, check_resolvable, run_task
 from vgpl.tasks.pipeline import training_summary
-from vgpl.tasks.stage import (LastValidation, SpentTimeWarning, checkpointing, max_time_key, snapshots, spent_time_warning, stopping,
-                              trainer_kwargs, validate_final)
+from vgpl.tasks.stage import (
+    LastValidation,
+    SpentTimeWarning,
+    checkpointing,
+    max_time_key,
+    snapshots,
+    spent_time_warning,
+    stopping,
+    trainer_kwargs,
+    validate_final,
+)
 from vgpl.tasks.stage import fit as stage_fit
 
 

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import torch
 from torch.utils.data import Dataset
 
 from vgpl.data.flow import farneback_flow, particle_flow

@@ -111,7 +111,7 @@ class NormStats:
     pos_std: torch.Tensor
 
     @classmethod
-    def from_rollouts(cls, r: Rollouts, kinematic: torch.Tensor | None = None) -> "NormStats":
+    def from_rollouts(cls, r: Rollouts, kinematic: torch.Tensor | None = None) -> NormStats:
         pos = r.positions if kinematic is None else r.positions[:, :, ~kinematic]
         disp = (pos[:, 1:] - pos[:, :-1]).reshape(-1, 3).double()
         flat = pos.reshape(-1, 3).double()

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import lightning as L
-import torch
 from torch.utils.data import DataLoader, Dataset
 
 from vgpl.data.trajectories import NormStats, Rollouts, load_split

@@ -62,7 +62,7 @@ class FreeFallSplit:
     position_mse: float
 
     @classmethod
-    def of(cls, rollouts, proposals, frames: int) -> "FreeFallSplit":
+    def of(cls, rollouts, proposals, frames: int) -> FreeFallSplit:
         """From a split's Rollouts and its Proposals (vgpl.data.grounding.split_with_proposals),
         frames 0..frames-1."""
         truth = rollouts.positions[:, :frames].double()

@@ -15,7 +15,7 @@ class Ridge:
     bias: torch.Tensor  # [P]
 
     @classmethod
-    def fit(cls, x: torch.Tensor, y: torch.Tensor, alpha: float = 1.0) -> "Ridge":
+    def fit(cls, x: torch.Tensor, y: torch.Tensor, alpha: float = 1.0) -> Ridge:
         """Least squares with an L2 penalty ``alpha`` on standardised features. x [R, F], y [R, P]."""
         x, y = x.double(), y.double()
         mean, std = x.mean(0), x.std(0).clamp_min(1e-6)

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import numbers
 
+
 def variant(record: dict) -> tuple[str, str, str]:
     """(method, ablation, env): what one row of a table and one pooled record stand for."""
     method = record.get("method", "vgpl")

@@ -6,6 +6,7 @@ from __future__ import annotations
 import csv
 import io
 import re
+from pathlib import Path
 from typing import NamedTuple
 
 import torch
@@ -226,3 +227,17 @@ def report_markdown(records: list[dict], paired: dict | None = None) -> str:
     for step, table in (paired_tables(records) if paired is None else paired).items():
         parts += ["", f"## Is VGPL lower at T+{step}? The same test videos, paired", markdown(*table)]
     return "\n".join(parts) + "\n"
+
+
+def write_tables(records: list[dict], out: Path, notes: str = "") -> str:
+    """report.md (the tables, then ``notes``), table1.csv, table2.csv and, where records carry
+    per-video errors, paired_t<k>.csv in ``out``; returns the Markdown."""
+    out.mkdir(parents=True, exist_ok=True)
+    paired = paired_tables(records)  # each ablation against VGPL on the same videos
+    text = report_markdown(records, paired) + notes
+    (out / "report.md").write_text(text)
+    (out / "table1.csv").write_text(csv_text(*table1_rows(records)))
+    (out / "table2.csv").write_text(csv_text(*table2_rows(records)))
+    for step, table in paired.items():
+        (out / f"paired_t{step}.csv").write_text(csv_text(*table))
+    return text

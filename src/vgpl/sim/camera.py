@@ -74,6 +74,6 @@ class Camera:
         )
 
     @classmethod
-    def from_json(cls, text: str) -> "Camera":
+    def from_json(cls, text: str) -> Camera:
         d = json.loads(text)
         return cls(tuple(d["eye"]), tuple(d["target"]), d["fov_y"], d["width"], d["height"])

@@ -41,7 +41,7 @@ class PairIndex:
     size: int
 
     @classmethod
-    def from_pairs(cls, i: torch.Tensor, j: torch.Tensor, size: int) -> "PairIndex":
+    def from_pairs(cls, i: torch.Tensor, j: torch.Tensor, size: int) -> PairIndex:
         xyz = torch.arange(3, device=i.device)
         return cls(i, j, (3 * i[:, None] + xyz).reshape(-1), (3 * j[:, None] + xyz).reshape(-1), size)
 

@@ -19,6 +19,7 @@ from vgpl.data.flow_windows import FlowWindows
 from vgpl.data.trajectories import load_split
 from vgpl.eval.linear_probe import Ridge
 from vgpl.eval.metrics import param_error_pct
+from vgpl.eval.tables import write_tables
 from vgpl.models.densephysnet import DensePhysNet
 from vgpl.tasks.stage import fit, setup_run, stage_checkpoint, stopping
 
@@ -116,7 +117,5 @@ def evaluate_baseline(cfg: DictConfig) -> dict:
     out = Path(cfg.paths.output_dir)
     out.mkdir(parents=True, exist_ok=True)
     (out / "metrics.json").write_text(json.dumps(record, indent=1))
-    from vgpl.tasks.evaluate import write_tables
-
     write_tables([record], out)
     return record

@@ -6,12 +6,11 @@ from __future__ import annotations
 import logging
 from pathlib import Path
 
+import numpy as np
 from hydra import compose
 from omegaconf import DictConfig, OmegaConf, open_dict
 
 from vgpl.data.shard import read_shard
-import numpy as np
-
 from vgpl.eval.preview import preview_frames, write_gif, write_png
 from vgpl.tasks.generate import generate
 

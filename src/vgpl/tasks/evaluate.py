@@ -29,7 +29,7 @@ from vgpl.eval.error_sources import error_sources_rows
 from vgpl.eval.grounding import evaluate_grounding, proposed_frames
 from vgpl.eval.preview import write_gif
 from vgpl.eval.rollout import FUTURE
-from vgpl.eval.tables import HORIZONS, PER_VIDEO, csv_text, markdown, paired_tables, param_rows, report_markdown, table1_rows, table2_rows
+from vgpl.eval.tables import HORIZONS, PER_VIDEO, csv_text, markdown, param_rows, write_tables
 from vgpl.eval.tensorboard_media import add_gif, rollout_video
 from vgpl.models.dynamics_prior import DynamicsPrior
 from vgpl.models.inference import InferenceModule
@@ -38,20 +38,6 @@ from vgpl.tasks.stage import setup_run, stage_checkpoint
 from vgpl.tasks.train_inference import inference_stage
 
 log = logging.getLogger(__name__)
-
-
-def write_tables(records: list[dict], out: Path, notes: str = "") -> str:
-    """report.md (the tables, then ``notes``), table1.csv, table2.csv and, where records carry
-    per-video errors, paired_t<k>.csv in ``out``; returns the Markdown."""
-    out.mkdir(parents=True, exist_ok=True)
-    paired = paired_tables(records)  # each ablation against VGPL on the same videos
-    text = report_markdown(records, paired) + notes
-    (out / "report.md").write_text(text)
-    (out / "table1.csv").write_text(csv_text(*table1_rows(records)))
-    (out / "table2.csv").write_text(csv_text(*table2_rows(records)))
-    for step, table in paired.items():
-        (out / f"paired_t{step}.csv").write_text(csv_text(*table))
-    return text
 
 
 def inference_checkpoint(cfg: DictConfig) -> Path:

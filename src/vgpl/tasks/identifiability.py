@@ -245,7 +245,7 @@ def check_identifiability(cfg: DictConfig) -> dict:
             raise IdentifiabilityError(message)
         log.warning(message)
     wrong = unpreferred_labels(metrics, types)
-    if wrong:  # a warning only: Q still trains, but to the blend this loss prefers 
+    if wrong:  # a warning only: Q still trains, but to the blend this loss prefers
         detail = "; ".join(f"{t}: the true label rolls better in {100 * share:.0f}% of scenes" for t, share in wrong.items())
         log.warning(f"{path}: the prior's rollout loss does not prefer the true rigidness ({detail}). The inference module learns Q "
                     "only through that loss, so Q will read the blend it prefers, and VGPL w/o rigidness can match or beat VGPL at "

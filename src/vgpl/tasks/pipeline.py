@@ -22,7 +22,8 @@ from pathlib import Path
 
 from omegaconf import DictConfig, OmegaConf
 
-from vgpl.tasks.evaluate import evaluate, write_tables
+from vgpl.eval.tables import write_tables
+from vgpl.tasks.evaluate import evaluate
 from vgpl.tasks.generate import generate
 from vgpl.tasks.identifiability import check_identifiability, identifiability_summary
 from vgpl.tasks.stage import trainer_kwargs

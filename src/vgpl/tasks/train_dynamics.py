@@ -15,12 +15,19 @@ from vgpl.checkpoint import init_from_spec, load_stage, scene_of
 from vgpl.data.schema import DatasetError
 from vgpl.data.trajectories import Rollouts, TrajectoryDataModule, load_split, true_window
 from vgpl.eval.error_breakdown import error_breakdown
-from vgpl.eval.rollout import future_mse, rollout
 from vgpl.eval.preview import write_gif
+from vgpl.eval.rollout import future_mse, rollout
 from vgpl.eval.tensorboard_media import add_gif, rollout_video
 from vgpl.models.dynamics_prior import DynamicsPrior
 from vgpl.sim.scene import Scene
-from vgpl.tasks.identifiability import check_sweep_rigidness, check_window_starts, gradient_agreement_by_start, rigidness_grid_option, rigidness_metrics, sweep_metrics
+from vgpl.tasks.identifiability import (
+    check_sweep_rigidness,
+    check_window_starts,
+    gradient_agreement_by_start,
+    rigidness_grid_option,
+    rigidness_metrics,
+    sweep_metrics,
+)
 from vgpl.tasks.stage import fit, setup_run, stopping
 
 log = logging.getLogger(__name__)

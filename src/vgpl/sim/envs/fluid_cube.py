@@ -14,8 +14,8 @@ import torch
 from vgpl.sim.contacts import project_particle_contacts, project_planes, push_rigid_out_of_planes
 from vgpl.sim.fluid import lattice_rest_density, project_density, xsph_viscosity
 from vgpl.sim.neighbors import radius_pairs
-from vgpl.sim.vector import PairIndex
 from vgpl.sim.scene import RolloutSample, Scene, lattice, random_walk_1d
+from vgpl.sim.vector import PairIndex
 
 
 class FluidCube(Scene):
