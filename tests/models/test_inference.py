@@ -41,12 +41,15 @@ def _modules(n=24, m=2, **kwargs):
     return dyn, inf
 
 
-def _batch(b=2, t=8, n=24):
-    return {
+def _batch(b=2, t=8, n=24, labels=False):
+    """A window batch; ``labels`` adds the true rigidness and grouping the paper's scheme rolls with."""
+    batch = {
         "proposals": torch.rand(b, t, n, 3), "logits": torch.randn(b, t, n, 2), "positions": torch.rand(b, t + 2, n, 3),
         "planes": torch.zeros(b, t + 2, 0, 4), "params": torch.tensor([[-9.0], [-12.0]]), "kinematic": torch.zeros(b, n, dtype=torch.bool),
-        "rigid": torch.tensor([[1.0, 0.0]] * b), "grouping": torch.nn.functional.one_hot(torch.arange(n) % 2, 2).float().expand(b, n, 2),
     }
+    if labels:
+        batch |= {"rigid": torch.tensor([[1.0, 0.0]] * b), "grouping": torch.nn.functional.one_hot(torch.arange(n) % 2, 2).float().expand(b, n, 2)}
+    return batch
 
 
 def test_training_loss_reaches_rigidness_and_parameters_only_through_the_frozen_prior():
@@ -107,7 +110,7 @@ def test_the_paper_scheme_rolls_each_network_with_the_true_values_of_the_others_
 
     torch.manual_seed(0)
     dyn, inf = _modules(training_scheme="paper")
-    batch = _batch()
+    batch = _batch(labels=True)
     losses = inf._losses(batch)
     param_pathway = inf.param_pathway()
     rest = [w for w in inf.parameters() if all(w is not v for v in param_pathway)]

@@ -120,7 +120,7 @@ def test_the_learned_stages_env_keys_leave_the_data_as_it_is(tmp_path):
     configuration"), and a scene change is still refused."""
     first = generate(config(tmp_path))
     again = generate(config(tmp_path, "env.graph_radius=0.1", "env.rigid_head=pooled", "env.start_frame=3",
-                            "env.standard_window_span=20", "env.standard_reference_steps.visual=7"))
+                            "env.prior_history=2"))
     assert (first["written"], again["written"]) == (4, 0)
     assert gen.config_hash(config(tmp_path).env, config(tmp_path).data, 0) != gen.config_hash(
         config(tmp_path, "env.scene.n_steps=9").env, config(tmp_path).data, 0)

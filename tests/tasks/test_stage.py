@@ -277,7 +277,7 @@ def test_the_standard_preset_in_steps_runs_the_reference_machines_steps_without_
     assert steps.model.visual.net.lr_anneal_steps / 1499 == pytest.approx(1 / 3, abs=1e-3)
     assert steps.paths.data_dir == clock.paths.data_dir and steps.paths.ckpt_dir != clock.paths.ckpt_dir
     assert steps.model.inference.window_span == clock.model.inference.window_span == 5  # the rest is the standard preset
-    with pytest.raises(InterpolationKeyError, match="env.standard_reference_steps.dynamics"):
+    with pytest.raises(InterpolationKeyError, match="reference_steps.dynamics"):
         other.trainer.max_steps  # noqa: B018
 
 
@@ -292,7 +292,7 @@ def test_a_task_whose_config_cannot_resolve_fails_before_it_reads_or_writes_anyt
             cfg = compose("config", overrides=["env=mass_rope", "experiment=standard_steps", f"task={task}",
                                                f"paths.root_dir={root}", f"paths.output_dir={root}/out"])
             with pytest.raises(ValueError, match=rf"task={task}: .*'model\.dynamics\.net\.noise_free_steps'.*"
-                                                 r"env\.standard_reference_steps\.dynamics_noise_free.*nothing was read or written"):
+                                                 r"reference_steps\.dynamics_noise_free.*nothing was read or written"):
                 run_task(cfg)
             assert not root.exists()
         tasks = sorted(p.stem for p in (REPO / "conf" / "task").glob("*.yaml"))
