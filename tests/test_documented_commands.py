@@ -101,6 +101,7 @@ def test_extraction_reads_fenced_continued_and_inline_commands() -> None:
     assert not is_elided(fill_placeholders("python run.py env=<env> experiment=<preset>"))
 
 
+@pytest.mark.slow  # composes every documented command: ~20 s
 def test_every_documented_command_composes(docs_text, hydra_conf) -> None:
     checked, failures = 0, []
     for name, text in docs_text.items():

@@ -154,7 +154,7 @@ def test_pin_follows_the_actuator_and_sphere_hangs_below():
 
 @pytest.mark.parametrize(
     "env,low,high,steps",
-    [("rigid_fall", -15.0, -5.0, 60), ("fluid_cube", 1.0, 100.0, 120), ("mass_rope", 0.25, 1.2, 120)],
+    [("rigid_fall", -15.0, -5.0, 60), pytest.param("fluid_cube", 1.0, 100.0, 120, marks=pytest.mark.slow), ("mass_rope", 0.25, 1.2, 120)],
 )
 def test_each_parameter_changes_the_motion(env, low, high, steps):
     """Same seed (same initial state and actions), parameter at both ends of its range: the

@@ -34,10 +34,10 @@ def test_a_list_of_separately_run_evaluations_makes_one_table(tmp_path):
     out = _report(tmp_path, f"[{full},{ablated}]")
     assert out["n_records"] == 2
     text = (tmp_path / "report/report.md").read_text()
-    assert "| VGPL | 15.4% (1.0) |" in text and "| VGPL w/o rigidness | 20.0% (1.0) |" in text
+    assert "| VGPL | 15.4% (1.0) |" in text and "| VGPL w/o rigidness (Q = 0) | 20.0% (1.0) |" in text
     assert "113.400" in (tmp_path / "report/table2.csv").read_text()
     paired = (tmp_path / "report/paired_t20.csv").read_text().splitlines()  # the two runs' videos, paired
-    assert len(paired) == 2 and paired[1].startswith('mass_rope,VGPL w/o rigidness,2,113.400,150.000,"+36.600 [+36.600, +36.600]",100%')
+    assert len(paired) == 2 and paired[1].startswith('mass_rope,VGPL w/o rigidness (Q = 0),2,113.400,150.000,"+36.600 [+36.600, +36.600]",100%')
     assert _report(tmp_path, str(tmp_path))["n_records"] == 2  # one folder: everything under it
 
 

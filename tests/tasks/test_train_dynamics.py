@@ -6,6 +6,7 @@ from pathlib import Path
 import pytest
 import torch
 from hydra import compose, initialize_config_dir
+from omegaconf import OmegaConf
 
 from tests.conftest import REPO
 from vgpl.checkpoint import CheckpointError
@@ -331,6 +332,7 @@ def test_learning_rate_decays_by_global_step_across_a_time_capped_fit_and_its_re
     assert resumed["optimizer_states"][0]["param_groups"][0]["lr"] == pytest.approx(5e-4)  # step 6 began epoch 1
 
 
+@pytest.mark.slow  # two run.py processes: ~15 s
 def test_a_run_killed_with_sigkill_resumes_from_its_last_checkpoint(tmp_path):
     """A real crash: run.py is SIGKILLed mid-training (no cleanup runs), then the same command
     with ckpt_path=last continues from the last checkpoint written before the kill."""
@@ -364,6 +366,7 @@ def test_a_run_killed_with_sigkill_resumes_from_its_last_checkpoint(tmp_path):
     assert float(resumed["optimizer_states"][0]["state"][0]["step"]) == target  # Adam continued from the killed run
 
 
+@pytest.mark.slow  # two DDP processes: ~25 s
 def test_ddp_on_two_cpu_processes_matches_single_process_training(tmp_path):
     """trainer=ddp (gloo, 2 processes x batch 2) against one process x batch 4: as many samples per
     step and gradients averaged over both ranks, so the validation loss after 6 steps agrees closely."""
@@ -523,3 +526,31 @@ def test_the_priors_weight_average_is_what_its_checkpoints_and_its_evaluation_ho
     again = evaluate_dynamics(config(tmp, "task=evaluate_dynamics", f"ckpt_path={result['checkpoint']}", "task.param_grid=0",
                                      f"paths.output_dir={tmp}/run_ema_eval"))
     assert again["future_mse_x1e4@10"] == result["future_mse_x1e4@10"]
+
+
+def test_the_unconstrained_prior_trains_into_its_own_folder_and_no_rigidness_unconstrained_rolls_it(trained):
+    """model.dynamics.net.rigid_head=none trains a prior without rigid-body constraints into
+    dynamics_unconstrained/ (beside the rigid prior, which it leaves alone); ablation=no_rigidness_unconstrained
+    trains its own module through it, and evaluation reads it and says which prior it rolled."""
+    from vgpl.tasks.train_visual import export_proposals
+
+    tmp, rigid = trained
+    before = Path(rigid["checkpoint"]).read_bytes()
+    free = train_dynamics(config(tmp, "task=train_dynamics", "model.dynamics.net.rigid_head=none"))
+    assert Path(free["checkpoint"]) == tmp / "ckpt/dynamics_unconstrained/last.ckpt"
+    assert Path(rigid["checkpoint"]).read_bytes() == before
+    prior, _ = load_dynamics(free["checkpoint"])
+    assert prior.rigid_head is None and prior.hparams.rigid_head == "none"
+    window = ["model.inference.window_span=5", "model.inference.observed=6", "model.inference.net.horizon=1", "model.inference.net.width=16",
+              "trainer.limit_train_batches=1", "trainer.limit_val_batches=1"]
+    export_proposals(config(tmp, "task=export_proposals", "task.source=truth", *window))
+    module = train_inference(config(tmp, "task=train_inference", "ablation=no_rigidness_unconstrained", *window))
+    assert Path(module["checkpoint"]) == tmp / "ckpt/inference_no_rigidness_unconstrained/last.ckpt"
+    saved = OmegaConf.load(Path(module["checkpoint"]).parent / "config.yaml")
+    assert saved.ablation.unconstrained_prior and not saved.ablation.rigidness
+    from vgpl.tasks.evaluate import evaluate
+
+    record = evaluate(config(tmp, "task=evaluate", "ablation=no_rigidness_unconstrained", "eval.proposals=truth", "eval.observed=6",
+                             "eval.max_observed=6", "eval.n_steps=5", *window))
+    assert record["checkpoints"]["dynamics"] == str(tmp / "ckpt/dynamics_unconstrained/last.ckpt")
+    assert "| VGPL w/o rigidness (unconstrained prior) |" in (tmp / "run/report.md").read_text()

@@ -35,7 +35,7 @@ from vgpl.models.dynamics_prior import DynamicsPrior
 from vgpl.models.inference import InferenceModule
 from vgpl.models.visual_prior import VisualPrior
 from vgpl.tasks.stage import setup_run, stage_checkpoint
-from vgpl.tasks.train_inference import inference_stage
+from vgpl.tasks.train_inference import ablation_prior, inference_stage
 
 log = logging.getLogger(__name__)
 
@@ -52,7 +52,7 @@ def warn_other_prior(inference_path: Path, inference_cfg: DictConfig, dynamics_p
     another dynamics prior than ``dynamics_path``: its P is fitted to that prior's rollout, and
     reads P off through another; None when they
     agree or its config does not say."""
-    trained = stage_checkpoint(inference_cfg, "dynamics") if inference_cfg.get("paths") else None
+    trained = stage_checkpoint(inference_cfg, ablation_prior(inference_cfg.ablation)) if inference_cfg.get("paths") else None
     if trained is None or Path(trained).resolve() == Path(dynamics_path).resolve():
         return None
     message = (f"{inference_path}: trained through the dynamics prior {trained}, evaluated through {dynamics_path}; "
@@ -74,7 +74,7 @@ def evaluate(cfg: DictConfig) -> dict:
     scene = scene_of(cfg)
     env, n = scene.name, scene.n_particles
     truth, by_video = source == "truth", source == "visual"
-    paths = {"dynamics": stage_checkpoint(cfg, "dynamics"), "visual": stage_checkpoint(cfg, "visual") if by_video else None,
+    paths = {"dynamics": stage_checkpoint(cfg, ablation_prior(cfg.ablation)), "visual": stage_checkpoint(cfg, "visual") if by_video else None,
              "proposals": proposals_path(cfg.data.root, env, "test") if source == "exported" else None, "inference": inference_checkpoint(cfg)}
     dynamics, _ = load_stage(paths["dynamics"], DynamicsPrior, env=env, n_particles=n)
     visual = load_stage(paths["visual"], VisualPrior, env=env, n_particles=n)[0] if by_video else None

@@ -1,8 +1,9 @@
 """task=pipeline (the default of ``python run.py``): the whole of VGPL on one environment.
 
-generate -> train_dynamics -> identifiability (can the prior's rollout loss find P? warn or stop)
--> train_visual -> export_proposals -> train_inference (full and
-no_rigidness) -> [train_baseline] -> evaluate (every ablation [and the baseline]; the rigidness
+generate -> train_dynamics [-> train_dynamics_unconstrained, the prior without rigid-body
+constraints, when ``task.ablations`` holds no_rigidness_unconstrained] -> identifiability (can the
+prior's rollout loss find P? warn or stop) -> train_visual -> export_proposals -> train_inference
+(full, and each w/o-rigidness variant asked for) -> [train_baseline] -> evaluate (every ablation [and the baseline]; the rigidness
 curve is measured by the first ablation that infers rigidness and reused by the others, which
 share its module) -> report.
 Each step writes into ``<run dir>/<step>/`` (and ``pipeline.json``: each step's seconds, each
@@ -34,14 +35,15 @@ from vgpl.tasks.train_visual import export_proposals, train_visual
 
 log = logging.getLogger(__name__)
 
-ABLATIONS = ("full", "no_rigidness", "no_refinement", "no_params")
+ABLATIONS = ("full", "no_rigidness", "no_rigidness_unconstrained", "no_refinement", "no_params")
 
 
 def ablation_config(name: str) -> DictConfig:
     """The flags of conf/ablation/<name>.yaml (a test keeps the two in agreement)."""
     if name not in ABLATIONS:
         raise ValueError(f"ablation '{name}': expected one of {list(ABLATIONS)}")
-    return OmegaConf.create({"name": name, "rigidness": name != "no_rigidness", "refinement": name != "no_refinement", "params": name != "no_params"})
+    return OmegaConf.create({"name": name, "rigidness": not name.startswith("no_rigidness"), "refinement": name != "no_refinement",
+                             "params": name != "no_params", "unconstrained_prior": name == "no_rigidness_unconstrained"})
 
 
 def step_config(cfg: DictConfig, out: Path, step: str, **updates) -> DictConfig:
@@ -55,9 +57,13 @@ def step_config(cfg: DictConfig, out: Path, step: str, **updates) -> DictConfig:
 
 def trainings(cfg: DictConfig) -> dict[str, str]:
     """The pipeline's training steps in the order it runs them -> the ``model.<stage>`` each trains."""
-    steps = {"train_dynamics": "dynamics", "train_visual": "visual", "train_inference/full": "inference"}
-    if "no_rigidness" in cfg.task.ablations:
-        steps["train_inference/no_rigidness"] = "inference"
+    steps = {"train_dynamics": "dynamics"}
+    if "no_rigidness_unconstrained" in cfg.task.ablations:
+        steps["train_dynamics_unconstrained"] = "dynamics"
+    steps |= {"train_visual": "visual", "train_inference/full": "inference"}
+    for name in ("no_rigidness", "no_rigidness_unconstrained"):
+        if name in cfg.task.ablations:
+            steps[f"train_inference/{name}"] = "inference"
     if cfg.task.get("baseline", False):
         steps["train_baseline"] = "densephysnet"
     return steps
@@ -97,6 +103,10 @@ def pipeline(cfg: DictConfig) -> dict:
     trained: dict[str, dict] = {}  # step -> its training's end (steps, max_steps, stopped_by)
     run("generate", generate)
     trained["train_dynamics"] = run("train_dynamics", train_dynamics)
+    if "train_dynamics_unconstrained" in stages:  # the prior VGPL w/o rigidness rolls in the paper: no rigid-body constraints
+        free = OmegaConf.to_container(cfg.model, resolve=True)
+        free["dynamics"]["net"]["rigid_head"] = "none"
+        trained["train_dynamics_unconstrained"] = run("train_dynamics_unconstrained", train_dynamics, model=free)
     identifiability = run("identifiability", check_identifiability)
     trained["train_visual"] = run("train_visual", train_visual)
     run("export_proposals", export_proposals)

@@ -30,6 +30,13 @@ def stage_checkpoint(cfg: DictConfig, stage: str) -> Path:
     return Path(given) if given else stage_dir(cfg, stage) / "last.ckpt"
 
 
+def dynamics_stage(unconstrained: bool) -> str:
+    """Checkpoint folder of a dynamics prior: ``dynamics``, or ``dynamics_unconstrained`` for the
+    prior without rigid-body constraints (``model.dynamics.net.rigid_head=none``) that
+    ``ablation=no_rigidness_unconstrained`` rolls."""
+    return "dynamics_unconstrained" if unconstrained else "dynamics"
+
+
 def setup_run(cfg: DictConfig) -> None:
     L.seed_everything(cfg.seed, workers=True)
     torch.set_num_threads(int(cfg.threads))

@@ -28,7 +28,7 @@ from vgpl.tasks.identifiability import (
     rigidness_metrics,
     sweep_metrics,
 )
-from vgpl.tasks.stage import fit, setup_run, stopping
+from vgpl.tasks.stage import dynamics_stage, fit, setup_run, stopping
 
 log = logging.getLogger(__name__)
 
@@ -58,7 +58,8 @@ def evaluate_rollouts(
 
 
 def train_dynamics(cfg: DictConfig) -> dict:
-    """Train the DynamicsPrior into ``<ckpt_dir>/dynamics/`` and evaluate its test rollouts."""
+    """Train the DynamicsPrior into ``<ckpt_dir>/dynamics/`` (``dynamics_unconstrained/`` with
+    ``model.dynamics.net.rigid_head=none``) and evaluate its test rollouts."""
     setup_run(cfg)
     scene = scene_of(cfg)
     out = Path(cfg.paths.output_dir)
@@ -72,8 +73,9 @@ def train_dynamics(cfg: DictConfig) -> dict:
         n_instances=scene.n_instances, radius=cfg.env.graph_radius, history=spec.history,
     )
     model.set_stats(dm.stats)
+    stage = dynamics_stage(model.hparams.rigid_head == "none")
     init_from_spec(model, spec, "dynamics", scene.name, scene.n_particles)
-    trainer, last = fit(cfg, "dynamics", spec, model, dm)
+    trainer, last = fit(cfg, stage, spec, model, dm)
     if not trainer.is_global_zero:  # under DDP the other ranks stop here; rank 0 evaluates and writes
         return {"env": scene.name, "checkpoint": str(last)}
     metrics, pred, truth = evaluate_rollouts(

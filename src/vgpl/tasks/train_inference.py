@@ -15,14 +15,23 @@ from vgpl.checkpoint import init_from_spec, load_stage, scene_of
 from vgpl.data.grounding import GroundingDataModule
 from vgpl.models.dynamics_prior import DynamicsPrior
 from vgpl.models.inference import InferenceModule
-from vgpl.tasks.stage import fit, setup_run, stage_checkpoint, stopping, validate_final
+from vgpl.tasks.stage import dynamics_stage, fit, setup_run, stage_checkpoint, stopping, validate_final
 
 log = logging.getLogger(__name__)
 
 
 def inference_stage(ablation: DictConfig) -> str:
-    """Checkpoint folder of the inference module an ablation uses."""
-    return "inference" if ablation.rigidness else "inference_no_rigidness"
+    """Checkpoint folder of the inference module an ablation uses: the full module, or the one
+    trained with Q = 0 through the rigid prior (no_rigidness) or through the unconstrained prior
+    (no_rigidness_unconstrained)."""
+    if ablation.rigidness:
+        return "inference"
+    return "inference_no_rigidness_unconstrained" if ablation.get("unconstrained_prior") else "inference_no_rigidness"
+
+
+def ablation_prior(ablation: DictConfig) -> str:
+    """Checkpoint folder of the dynamics prior an ablation rolls."""
+    return dynamics_stage(bool(ablation.get("unconstrained_prior")))
 
 
 def grounding_datamodule(cfg: DictConfig, scene) -> GroundingDataModule:
@@ -40,7 +49,7 @@ def train_inference(cfg: DictConfig) -> dict:
     if spec.net.get("param_rotation") and not scene.vertical_symmetry:
         raise ValueError(f"model.inference.net.param_rotation=true: env={scene.name} is not symmetric about the vertical axis "
                          f"(planes or sampling that a rotation would change); only RigidFall is")
-    dynamics, _ = load_stage(stage_checkpoint(cfg, "dynamics"), DynamicsPrior, env=scene.name)
+    dynamics, _ = load_stage(stage_checkpoint(cfg, ablation_prior(cfg.ablation)), DynamicsPrior, env=scene.name)
     dm = grounding_datamodule(cfg, scene)
     dm.setup()
     source = {"proposals_source": str(dm.train_proposals.attrs.get("source", "visual")),
