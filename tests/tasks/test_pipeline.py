@@ -88,7 +88,7 @@ def test_inferred_parameters_beat_the_range_midpoint(tiny):
 def test_every_ablation_and_the_baseline_are_in_the_report(tiny):
     tmp, result = tiny
     text = (tmp / "run/report.md").read_text()
-    for row in ("| VGPL |", "| VGPL w/o rigidness (Q = 0) |", "| VGPL w/o refinement |", "| VGPL w/o parameter estimation |", "| DensePhysNet |"):
+    for row in ("| VGPL |", "| VGPL w/o rigidness (Q = 0) |", "| VGPL w/o refinement |", "| VGPL w/o parameter estimation |", "| DensePhysNet (simulator flow, privileged) |"):
         assert row in text
     for line in ("- train_dynamics: 250 of 250 steps", "- train_visual: 300 of 300 steps", "- train_inference/full: 600 of 600 steps",
                  "- train_inference/no_rigidness: 600 of 600 steps", "- train_baseline: 100 of 100 steps"):
@@ -121,7 +121,7 @@ def test_baseline_predicts_flow_better_than_zero_and_reports_a_parameter_error(t
     dpn = next(r for r in result["records"] if r["method"] == "densephysnet")
     assert dpn["flow_epe"] < dpn["flow_epe_zero"] and dpn["flow_correlation"] > 0.3
     assert dpn["n_test"] == 24  # every test video, as VGPL's rows
-    row = next(line for line in (tmp / "run/report.md").read_text().splitlines() if line.startswith("| DensePhysNet |"))
+    row = next(line for line in (tmp / "run/report.md").read_text().splitlines() if line.startswith("| DensePhysNet (simulator flow, privileged) |"))
     assert f"{dpn['param_mae_pct']:.1f}% ({dpn['param_mae_pct_std']:.1f})" in row  # Table 1 reports the record
 
 

@@ -1,5 +1,6 @@
-"""Ground-truth optical flow from the simulator: each particle's pixel motion splatted into a
-flow image (the DensePhysNet baseline's training target)."""
+"""Optical flow for the DensePhysNet baseline: the simulator's (each particle's pixel motion
+splatted into a flow image: privileged, noise-free) or estimated from the rendered frames
+(OpenCV's Farneback, as the paper estimated it from video), and how far the two are apart."""
 
 from __future__ import annotations
 
@@ -47,3 +48,13 @@ def farneback_flow(frames: torch.Tensor) -> torch.Tensor:
     gray = [cv2.cvtColor(f, cv2.COLOR_RGB2GRAY) for f in frames.numpy()]
     out = [cv2.calcOpticalFlowFarneback(a, b, None, 0.5, 3, 9, 3, 5, 1.1, 0) for a, b in zip(gray[:-1], gray[1:])]
     return torch.as_tensor(np.stack(out))
+
+
+def flow_error(estimated: torch.Tensor, simulated: torch.Tensor) -> dict[str, float]:
+    """How far an estimated flow [..., H, W, 2] is from the simulator's [..., H, W, 2] (pixels per
+    frame), on the pixels the simulator moves: the mean end-point error, and that of predicting no
+    motion there (the error an estimator that sees nothing would have)."""
+    moving = simulated.norm(dim=-1) > 0
+    if not bool(moving.any()):
+        raise ValueError("flow_error: the simulator's flow moves no pixel in these frames")
+    return {"epe": float((estimated - simulated).norm(dim=-1)[moving].mean()), "epe_zero": float(simulated.norm(dim=-1)[moving].mean())}

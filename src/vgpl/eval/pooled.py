@@ -11,9 +11,13 @@ import numbers
 
 
 def variant(record: dict) -> tuple[str, str, str]:
-    """(method, ablation, env): what one row of a table and one pooled record stand for."""
+    """(method, ablation, env): what one row of a table and one pooled record stand for. DensePhysNet's
+    "ablation" is the flow it learned: ``full`` on flow estimated from the frames, ``simulator_flow``
+    on the simulator's privileged flow (records without the key were trained on it)."""
     method = record.get("method", "vgpl")
-    return method, "full" if method == "densephysnet" else record.get("ablation", "full"), record["env"]
+    if method == "densephysnet":
+        return method, "full" if record.get("flow", "simulator") != "simulator" else "simulator_flow", record["env"]
+    return method, record.get("ablation", "full"), record["env"]
 
 
 def pool_runs(records: list[dict]) -> list[dict]:
