@@ -6,10 +6,12 @@ import h5py
 import numpy as np
 import pytest
 
+from tests.tasks.test_generate import config
 from vgpl.data.schema import DatasetError, validate
-from vgpl.data.shard import read_shard, write_shard
+from vgpl.data.shard import read_shard, shard_is_complete, write_shard
+from vgpl.data.trajectories import load_split
 from vgpl.sim.envs import make_scene
-from vgpl.tasks.generate import plan_shards, scene_attrs, simulate_shard
+from vgpl.tasks.generate import generate, plan_shards, scene_attrs, simulate_shard
 
 
 @pytest.fixture(scope="module")
@@ -70,3 +72,47 @@ def test_inconsistent_shape_is_named(shard_file, tmp_path):
 def test_missing_file_is_named(tmp_path):
     with pytest.raises(DatasetError, match="nope.h5: no such dataset file"):
         validate(tmp_path / "nope.h5")
+
+
+def _nan_shard(tmp_path, key="positions", rollout=1):
+    """A valid shard file written by the engine, then one value of ``key`` in ``rollout`` set to NaN in place."""
+    generate(config(tmp_path))
+    path = sorted((tmp_path / "rigid_fall/train").glob("shard_*.h5"))[0]
+    with h5py.File(path, "r+") as f:
+        data = f[key][()]
+        data[rollout].flat[0] = float("nan")
+        f[key][...] = data
+        ids = f["rollout_ids"][()]
+    return path, int(ids[rollout])
+
+
+def test_a_shard_with_nan_is_refused_by_name_when_read_and_never_counted_as_generated(tmp_path):
+    path, rollout = _nan_shard(tmp_path)
+    with pytest.raises(DatasetError, match=rf"{path.name}: 'positions' holds NaN or inf in rollout\(s\) \[{rollout}\]"):
+        read_shard(path, images=False)
+    with h5py.File(path, "r") as f:
+        config_hash = str(f.attrs["config_hash"])
+    with pytest.raises(DatasetError, match="holds NaN"):
+        shard_is_complete(path, config_hash)  # a rerun of task=generate stops on it instead of skipping it
+
+
+def test_writing_refuses_non_finite_values_and_parameters_outside_their_range(tmp_path):
+    path, _ = _nan_shard(tmp_path, "params", 0)
+    good = sorted((tmp_path / "rigid_fall/test").glob("shard_*.h5"))[0]
+    shard = read_shard(good, images=False)
+    shard.velocities[0].flat[3] = float("inf")
+    with pytest.raises(DatasetError, match=r"out\.h5: 'velocities' holds NaN or inf"):
+        write_shard(tmp_path / "out.h5", shard)
+    assert not (tmp_path / "out.h5").exists() and not (tmp_path / "out.h5.tmp").exists()
+    shard = read_shard(good, images=False)
+    shard.params[0, 0] = 3.0  # gravity is in [-15, -5]
+    with pytest.raises(DatasetError, match=r"'params' of rollout\(s\) .* lie outside the range"):
+        write_shard(tmp_path / "out.h5", shard)
+
+
+def test_a_stray_copy_of_a_shard_is_refused_naming_both_files(tmp_path):
+    generate(config(tmp_path))
+    first = sorted((tmp_path / "rigid_fall/train").glob("shard_*.h5"))[0]
+    shutil.copy(first, first.with_name("shard_00007.h5"))
+    with pytest.raises(DatasetError, match=r"shard_00007\.h5: rollout \d+ is also in .*shard_00000\.h5"):
+        load_split(tmp_path, "rigid_fall", "train")

@@ -357,3 +357,28 @@ def test_the_stages_fit_warns_before_resuming_past_its_max_time_and_names_the_op
         resumed, _ = stage_fit(cfg, "toy", cfg.model.dynamics, ValidatedRegression(0.25), data)
     assert resumed.global_step == first.global_step
     assert f"{tmp_path / 'toy' / 'last.ckpt'}: holds" in caplog.text and "pass model.dynamics.trainer.max_time=00:01:00:0" in caplog.text
+
+
+class DivergingRegression(ValidatedRegression):
+    """Its loss turns NaN at ``at_step`` (as a shard with NaN or a diverging rate makes it)."""
+
+    def __init__(self, at_step: int) -> None:
+        super().__init__(0.0)
+        self.at_step = at_step
+
+    def training_step(self, batch, batch_idx):
+        loss = super().training_step(batch, batch_idx)
+        return loss * float("nan") if self.global_step >= self.at_step else loss
+
+
+def test_a_training_whose_loss_turns_nan_stops_with_the_stage_and_step_and_saves_no_nan_weights(tmp_path):
+    with initialize_config_dir(str(REPO / "conf"), version_base="1.3"):
+        cfg = compose("config", overrides=[f"paths.ckpt_dir={tmp_path}", f"paths.output_dir={tmp_path}", "model.dynamics.trainer.max_time=null",
+                                           "model.dynamics.trainer.max_steps=40", "trainer.max_epochs=-1", "trainer.enable_progress_bar=false",
+                                           "model.dynamics.trainer.val_check_interval=4", "trainer.limit_val_batches=1"])
+    data = L.LightningDataModule.from_datasets(TensorDataset(torch.randn(64, 2), torch.randn(64, 1)),
+                                               TensorDataset(torch.randn(8, 2), torch.randn(8, 1)), batch_size=4)
+    with pytest.raises(FloatingPointError, match=r"toy: the training loss is nan at step 10; stopped before any checkpoint"):
+        stage_fit(cfg, "toy", cfg.model.dynamics, DivergingRegression(at_step=9), data)
+    saved = torch.load(tmp_path / "toy" / "last.ckpt", weights_only=False)
+    assert saved["global_step"] == 8 and all(bool(torch.isfinite(w).all()) for w in saved["state_dict"].values())

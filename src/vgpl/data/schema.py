@@ -61,6 +61,25 @@ def _check_shape(path: Path, key: str, shape: tuple, template: tuple, dims: dict
             raise DatasetError(f"{path}: '{key}' has shape {shape}, expected {template} with {sym}={dims[sym]} as in the other keys")
 
 
+def check_values(path: str | Path, arrays: dict, param_low, param_high) -> None:
+    """The values a shape check cannot see: finite positions, velocities and actions in every
+    rollout, parameters within [param_low, param_high]. ``arrays`` maps schema keys to arrays
+    (``rollout_ids`` names the rollouts). Raises DatasetError naming the file, key and rollouts."""
+    ids = np.asarray(arrays["rollout_ids"])
+    for key in ("positions", "velocities", "actions", "params"):
+        data = np.asarray(arrays[key])
+        bad = ~np.isfinite(data.reshape(len(data), -1)).all(1)
+        if bad.any():
+            raise DatasetError(f"{path}: '{key}' holds NaN or inf in rollout(s) {ids[bad].tolist()}, expected finite values "
+                               "(a diverged simulation; regenerate those rollouts or drop the file)")
+    params, low, high = np.asarray(arrays["params"]), np.asarray(param_low, float), np.asarray(param_high, float)
+    slack = 1e-6 * (high - low)
+    out = ((params < low - slack) | (params > high + slack)).any(1)
+    if out.any():
+        raise DatasetError(f"{path}: 'params' of rollout(s) {ids[out].tolist()} lie outside the range [{low.tolist()}, {high.tolist()}] "
+                           "of the attributes param_low/param_high")
+
+
 def validate(path: str | Path) -> dict:
     """Check one shard file against the schema.
 

@@ -12,7 +12,7 @@ import h5py
 import numpy as np
 
 from vgpl import __version__
-from vgpl.data.schema import DATASETS, FORMAT_VERSION, DatasetError, validate
+from vgpl.data.schema import DATASETS, FORMAT_VERSION, DatasetError, check_values, validate
 
 
 @dataclass
@@ -31,8 +31,10 @@ class Shard:
 
 
 def write_shard(path: str | Path, shard: Shard, compression_level: int = 4) -> Path:
-    """Write ``shard`` to ``path`` through a temporary file and an atomic rename."""
+    """Write ``shard`` to ``path`` through a temporary file and an atomic rename; a shard with
+    non-finite values or parameters outside its range is refused before anything is written."""
     path = Path(path)
+    check_values(path, {key: getattr(shard, key) for key in DATASETS}, shard.attrs["param_low"], shard.attrs["param_high"])
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(path.name + ".tmp")
     attrs = {
@@ -63,6 +65,7 @@ def read_shard(path: str | Path, images: bool = True, rollouts: int | None = Non
     with h5py.File(path, "r") as f:
         arrays = {key: f[key][:rollouts] if template[0] == "R" else f[key][()] for key, (_, template) in DATASETS.items()}
         video = f["images"][:rollouts, :frames] if images and "images" in f else None
+    check_values(path, arrays, info["attrs"]["param_low"], info["attrs"]["param_high"])
     return Shard(**arrays, images=video, attrs=info["attrs"])
 
 
@@ -116,4 +119,5 @@ def shard_is_complete(path: Path, config_hash: str) -> bool:
             f"{path}: exists with a different configuration (config_hash {found}, this run {config_hash}); "
             "choose another data.root or delete the folder"
         )
+    read_shard(path, images=False)  # its values too: a shard with NaN is never counted as done
     return True

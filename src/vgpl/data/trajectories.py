@@ -58,6 +58,13 @@ def load_split(root: str | Path, env: str, split: str, images: bool = False, max
     last = None if max_rollouts is None else first_rollout + max_rollouts
     read = list(read_first_rollouts(files, last))  # the video, if asked for, is read below, straight into one array
     shards = [shard for _, shard in read]
+    seen: dict[int, Path] = {}
+    for f, shard in read:  # a stray copy of a shard would train on its rollouts twice
+        for rid in shard.rollout_ids.tolist():
+            if rid in seen:
+                raise DatasetError(f"{f}: rollout {rid} is also in {seen[rid]}: every rollout id of a split must be unique "
+                                   "(a copied or misplaced shard file? remove it)")
+            seen[rid] = f
     order = np.argsort(np.concatenate([s.rollout_ids for s in shards]), kind="stable")[first_rollout:]  # the kept rollouts
     if len(order) == 0:
         raise DatasetError(f"{folder}: {sum(len(s.rollout_ids) for s in shards)} rollouts, none from first_rollout={first_rollout} on")

@@ -72,7 +72,7 @@ def fit(cfg: DictConfig, stage: str, stage_cfg: DictConfig, model: L.LightningMo
     saved["stage_class"] = f"{type(model).__module__}.{type(model).__name__}"
     OmegaConf.save(OmegaConf.create(saved), folder / "config.yaml")
     kwargs = trainer_kwargs(cfg, stage_cfg)
-    callbacks = [*checkpointing(folder, monitor), LastValidation(), SpentTimeWarning(max_time_key(cfg, stage_cfg))]
+    callbacks = [*checkpointing(folder, monitor), LastValidation(), SpentTimeWarning(max_time_key(cfg, stage_cfg)), FiniteLoss(stage)]
     if stage_cfg.get("snapshot_every_n_steps") is not None:
         callbacks.append(snapshots(folder, int(stage_cfg.snapshot_every_n_steps)))
     ema = stage_cfg.get("ema") or {}
@@ -169,6 +169,22 @@ def checkpointing(folder: str | Path, monitor: str) -> list[ModelCheckpoint]:
     not carry the best score over, so best.ckpt is the resumed run's best."""
     return [ModelCheckpoint(dirpath=folder, filename="best", monitor=monitor, enable_version_counter=False),
             ModelCheckpoint(dirpath=folder, filename="last", enable_version_counter=False)]
+
+
+class FiniteLoss(Callback):
+    """Stops a training whose loss is not finite, with one error naming the stage and the step,
+    before a validation could save the weights it left (NaN in a shard, a diverging rate)."""
+
+    def __init__(self, stage: str) -> None:
+        self.stage = stage
+
+    def on_train_batch_end(self, trainer, pl_module, outputs, batch, batch_idx) -> None:
+        loss = outputs["loss"] if isinstance(outputs, dict) else outputs
+        if loss is not None and not bool(torch.isfinite(loss).all()):
+            raise FloatingPointError(
+                f"{self.stage}: the training loss is {float(loss)} at step {trainer.global_step}; stopped before any checkpoint could "
+                "hold the weights it left. Check the data (task=generate validates shards; a NaN in a rollout is named there) or lower "
+                "the learning rate; ckpt_path=last resumes from the last finite checkpoint")
 
 
 class LastValidation(Callback):
