@@ -168,7 +168,7 @@ def test_bad_option_gives_one_clear_error(tmp_path):
 
 
 def test_local_launcher_runs_a_two_job_sweep_in_parallel_processes(tmp_path):
-    proc = run_py("-m", "hydra/launcher=local", "task=generate", "env=rigid_fall,mass_rope", "env.scene.n_steps=4", "data.n_rollouts=2",
+    proc = run_py("-m", "hydra/launcher=local", "task=generate", "env=rigid_fall,mass_rope", "env.scene.n_steps=4", "data.n_rollouts=2", "data.train_fraction=0.5",
                   "data.shard_size=2", "data.render=false", "data.progress=false", "threads=1", f"data.root={tmp_path}/data",
                   f"hydra.sweep.dir={tmp_path}/sweep", cwd=tmp_path)
     assert proc.returncode == 0, proc.stderr[-2000:]
@@ -176,3 +176,26 @@ def test_local_launcher_runs_a_two_job_sweep_in_parallel_processes(tmp_path):
     assert sorted(p.name for p in (tmp_path / "sweep").iterdir() if p.is_dir()) == ["0", "1"]
     for env in ("rigid_fall", "mass_rope"):
         validate(next((tmp_path / "data" / env / "train").glob("*.h5")))
+
+
+@pytest.mark.parametrize(("overrides", "message"), [
+    (["data.n_rollouts=abc"], r"data\.n_rollouts='abc': expected an integer"),
+    (["data.train_fraction=most"], r"data\.train_fraction='most': expected a number"),
+    (["data.n_rollouts=2"], r"data\.n_rollouts=2 with data\.train_fraction=0\.8 leaves the test split empty .* at least 8 rollouts"),
+])
+def test_bad_sizes_are_refused_by_their_key_before_anything_is_simulated(tmp_path, overrides, message):
+    with pytest.raises(ValueError, match=message):
+        generate(config(tmp_path, *overrides))
+    assert not (tmp_path / "rigid_fall").exists()
+    assert generate(config(tmp_path, "data.n_rollouts=2", "data.train_fraction=1.0"))["written"] == 1  # no test split asked for: fine
+
+
+def test_an_unwritable_data_folder_is_found_before_any_simulation(tmp_path):
+    import os
+
+    if os.geteuid() == 0:  # root writes anywhere: make the folder a file instead, which nobody can write into
+        (tmp_path / "ro").write_text("not a folder")
+    else:
+        (tmp_path / "ro").mkdir(mode=0o500)
+    with pytest.raises(PermissionError, match=r"ro/rigid_fall: cannot write the dataset there \(data\.root\).*nothing was simulated"):
+        generate(config(tmp_path / "ro"))

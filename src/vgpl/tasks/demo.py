@@ -24,7 +24,8 @@ def demo(cfg: DictConfig) -> dict:
         env_cfg = compose(config_name="config", overrides=[f"env={env}"]).env
         if cfg.task.get("n_steps"):
             env_cfg.scene.n_steps = cfg.task.n_steps
-        sub = OmegaConf.merge(cfg, {"data": {"n_rollouts": cfg.task.n_rollouts}})
+        n = int(cfg.task.n_rollouts)
+        sub = OmegaConf.merge(cfg, {"data": {"n_rollouts": n, "train_fraction": (n - 1) / n if n > 1 else 1.0}})  # the last one is the test split
         with open_dict(sub):
             sub.env = env_cfg  # replaced, not merged: a merge would keep keys of the default env that this one lacks
         summary = generate(sub)

@@ -12,7 +12,9 @@ from __future__ import annotations
 import hashlib
 import json
 import logging
+import math
 import multiprocessing
+import tempfile
 import time
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import dataclass
@@ -41,7 +43,12 @@ class ShardPlan:
 
 
 def plan_shards(n_rollouts: int, train_fraction: float, shard_size: int) -> list[ShardPlan]:
-    """Split rollouts 0..n_rollouts-1 into train/test and each split into shards of ``shard_size``."""
+    """Split rollouts 0..n_rollouts-1 into train/test and each split into shards of ``shard_size``.
+    Bad values are refused by their key before anything is simulated: non-numbers, sizes below 1,
+    and sizes that leave the test split empty while ``train_fraction`` < 1 asks for one."""
+    for key, value, kind in (("n_rollouts", n_rollouts, int), ("shard_size", shard_size, int), ("train_fraction", train_fraction, (int, float))):
+        if isinstance(value, bool) or not isinstance(value, kind):
+            raise ValueError(f"data.{key}={value!r}: expected {'an integer' if kind is int else 'a number'}")
     if n_rollouts < 1:
         raise ValueError(f"data.n_rollouts must be >= 1, got {n_rollouts}")
     if not 0.0 < train_fraction <= 1.0:
@@ -49,11 +56,25 @@ def plan_shards(n_rollouts: int, train_fraction: float, shard_size: int) -> list
     if shard_size < 1:
         raise ValueError(f"data.shard_size must be >= 1, got {shard_size}")
     n_train = min(n_rollouts, max(1, round(n_rollouts * train_fraction)))
+    if train_fraction < 1.0 and n_train == n_rollouts:
+        raise ValueError(f"data.n_rollouts={n_rollouts} with data.train_fraction={train_fraction} leaves the test split empty "
+                         f"(round({n_rollouts} x {train_fraction}) = {n_train} train rollouts): use at least "
+                         f"{math.ceil(1.5 / (1.0 - train_fraction))} rollouts, a smaller train_fraction, or train_fraction=1.0 for no test split")
     plans = []
     for split, ids in (("train", range(0, n_train)), ("test", range(n_train, n_rollouts))):
         for k, start in enumerate(range(0, len(ids), shard_size)):
             plans.append(ShardPlan(split, k, tuple(ids[start : start + shard_size])))
     return plans
+
+
+def check_writable(folder: Path) -> None:
+    """Fail before any simulation when ``folder`` (data.root/<env>) cannot be created or written."""
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+        with tempfile.NamedTemporaryFile(dir=folder, prefix=".write_check_"):
+            pass
+    except OSError as e:
+        raise PermissionError(f"{folder}: cannot write the dataset there (data.root): {e.strerror or e}; nothing was simulated") from e
 
 
 def rollout_rng(seed: int, rollout: int) -> np.random.Generator:
@@ -135,10 +156,11 @@ def generate(cfg: DictConfig) -> dict:
         raise ValueError(f"data.worker must be in [0, data.num_workers={data.num_workers}), got {data.worker}")
     if data.processes < 1:
         raise ValueError(f"data.processes must be >= 1, got {data.processes}")
+    plans = [p for k, p in enumerate(plan_shards(data.n_rollouts, data.train_fraction, data.shard_size)) if k % data.num_workers == data.worker]
     scene: Scene = hydra.utils.instantiate(cfg.env.scene)
     root = Path(data.root) / scene.name
+    check_writable(root)
     digest = config_hash(cfg.env, data, cfg.seed)
-    plans = [p for k, p in enumerate(plan_shards(data.n_rollouts, data.train_fraction, data.shard_size)) if k % data.num_workers == data.worker]
     todo = [p for p in plans if not shard_is_complete(p.path(root), digest)]
     log.info("%s: %d shard(s) for this worker, %d already complete, writing %d under %s", scene.name, len(plans), len(plans) - len(todo), len(todo), root)
     start = time.perf_counter()
