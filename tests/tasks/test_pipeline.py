@@ -57,6 +57,9 @@ def tiny(tmp_path_factory):
 
 
 def test_inferred_parameters_beat_the_range_midpoint(tiny):
+    """The quick recipe (its supervised loss on P included: param_weight 10) beats the constant guess,
+    and every number of the record is the per-video CSV's. Grounding P through the prior alone, with
+    no loss on it, is tests/tasks/test_grounding_through_the_prior.py."""
     tmp, result = tiny
     full = next(r for r in result["records"] if r["method"] == "vgpl" and r["ablation"] == "full")
     test = load_split(tmp / "data/quick", "rigid_fall", "test")
