@@ -52,7 +52,7 @@ def warn_other_prior(inference_path: Path, inference_cfg: DictConfig, dynamics_p
     another dynamics prior than ``dynamics_path``: its P is fitted to that prior's rollout, and
     reads P off through another; None when they
     agree or its config does not say."""
-    trained = stage_checkpoint(inference_cfg, ablation_prior(inference_cfg.ablation)) if inference_cfg.get("paths") else None
+    trained = stage_checkpoint(inference_cfg, ablation_prior(inference_cfg.get("ablation") or {})) if inference_cfg.get("paths") else None
     if trained is None or Path(trained).resolve() == Path(dynamics_path).resolve():
         return None
     message = (f"{inference_path}: trained through the dynamics prior {trained}, evaluated through {dynamics_path}; "
