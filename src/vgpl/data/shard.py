@@ -61,7 +61,11 @@ def read_shard(path: str | Path, images: bool = True, rollouts: int | None = Non
     """Validate and load a shard file: its first ``rollouts`` rollouts (None: all) and of the video
     its first ``frames`` frames (None: all); ``images=False`` skips decoding the video. Only
     what is asked for is read (a FluidCube shard's video is 1.7 GB)."""
-    info = validate(path)
+    return _load(path, validate(path), images, rollouts, frames)
+
+
+def _load(path: str | Path, info: dict, images: bool, rollouts: int | None, frames: int | None) -> Shard:
+    """The arrays of a shard file ``validate`` has passed (its ``info``), their values checked."""
     with h5py.File(path, "r") as f:
         arrays = {key: f[key][:rollouts] if template[0] == "R" else f[key][()] for key, (_, template) in DATASETS.items()}
         video = f["images"][:rollouts, :frames] if images and "images" in f else None
@@ -119,5 +123,5 @@ def shard_is_complete(path: Path, config_hash: str) -> bool:
             f"{path}: exists with a different configuration (config_hash {found}, this run {config_hash}); "
             "choose another data.root or delete the folder"
         )
-    read_shard(path, images=False)  # its values too: a shard with NaN is never counted as done
+    _load(path, info, images=False, rollouts=None, frames=None)  # its values too: a shard with NaN is never counted as done
     return True
