@@ -43,3 +43,26 @@ def test_farneback_flow_from_rendered_frames_follows_the_simulators_flow():
     error = flow_error(estimated, simulated)
     assert error["epe"] < 0.6 * error["epe_zero"] and error["epe_zero"] > 0.5  # the cubes move half a pixel a frame or more
     assert flow_error(simulated, simulated)["epe"] == 0.0
+
+
+def test_evaluation_windows_of_estimated_flow_carry_the_simulators_flow_to_measure_it_by(tmp_path):
+    """FlowWindows(flow="farneback", reference=True): each item's flow is Farneback's from its frames
+    and ``simulator_flow`` the particles' own; training windows (reference off) and windows of the
+    simulator's flow carry no second flow."""
+    from hydra import compose, initialize_config_dir
+
+    from tests.conftest import REPO
+    from vgpl.data.flow_windows import FlowWindows
+    from vgpl.data.trajectories import load_split
+    from vgpl.tasks.generate import generate
+
+    with initialize_config_dir(str(REPO / "conf"), version_base="1.3"):
+        generate(compose("config", overrides=["task=generate", "env=rigid_fall", "env.scene.n_steps=12", f"data.root={tmp_path}",
+                                              "data.n_rollouts=2", "data.train_fraction=0.5", "data.progress=false"]))
+    videos = load_split(tmp_path, "rigid_fall", "test", images=True)
+    scene = make_scene("rigid_fall")
+    item = FlowWindows(videos, scene.camera, 4, flow="farneback", reference=True)[0]
+    torch.testing.assert_close(item["flow"], farneback_flow(videos.images[0, :5]))
+    torch.testing.assert_close(item["simulator_flow"], particle_flow(scene.camera, videos.positions[0, :5]))
+    assert "simulator_flow" not in FlowWindows(videos, scene.camera, 4, flow="farneback")[0]
+    assert "simulator_flow" not in FlowWindows(videos, scene.camera, 4, flow="simulator", reference=True)[0]

@@ -11,12 +11,14 @@ from vgpl.data.trajectories import Rollouts
 class FlowWindows(Dataset):
     """Item: frames uint8 [T + 1, H, W, 3], actions [T, A], flow [T, H, W, 2] (pixels per frame),
     params [P]. Windows start at ``start_frame`` and every ``stride``-th frame after it
-    (``stride=None``: only at ``start_frame``, the evaluation protocol)."""
+    (``stride=None``: only at ``start_frame``, the evaluation protocol). With ``reference`` and
+    estimated flow, items also hold ``simulator_flow`` [T, H, W, 2], to measure the estimate by."""
 
-    def __init__(self, rollouts: Rollouts, camera, observed: int, start_frame: int = 0, stride: int | None = None, flow: str = "simulator") -> None:
+    def __init__(self, rollouts: Rollouts, camera, observed: int, start_frame: int = 0, stride: int | None = None, flow: str = "simulator",
+                 reference: bool = False) -> None:
         if flow not in ("simulator", "farneback"):
             raise ValueError(f"model.densephysnet.flow={flow!r}: expected simulator or farneback")
-        self.flow = flow
+        self.flow, self.reference = flow, reference and flow != "simulator"
         if rollouts.images is None:
             raise ValueError("FlowWindows needs rollouts loaded with images=True")
         self.r, self.camera, self.observed = rollouts, camera, observed
@@ -33,8 +35,12 @@ class FlowWindows(Dataset):
     def __getitem__(self, k: int) -> dict:
         r, s = self.index[k]
         frames = slice(s, s + self.observed + 1)
-        return {
+        simulated = particle_flow(self.camera, self.r.positions[r, frames]) if self.flow == "simulator" or self.reference else None
+        item = {
             "frames": self.r.images[r, frames], "actions": self.r.actions[r, s : s + self.observed],
-            "flow": particle_flow(self.camera, self.r.positions[r, frames]) if self.flow == "simulator" else farneback_flow(self.r.images[r, frames]),
+            "flow": simulated if self.flow == "simulator" else farneback_flow(self.r.images[r, frames]),
             "params": self.r.params[r],
         }
+        if self.reference:
+            item["simulator_flow"] = simulated
+        return item
