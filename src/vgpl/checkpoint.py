@@ -12,6 +12,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 import hydra
+import torch
 from omegaconf import DictConfig, OmegaConf
 
 log = logging.getLogger(__name__)
@@ -28,19 +29,7 @@ def load_stage(path: str | Path, cls, env: str | None = None, n_particles: int |
     for another environment / particle count than ``env`` / ``n_particles``.
     """
     path = Path(path)
-    if not path.is_file():
-        raise CheckpointError(f"{path}: no such checkpoint ({cls.__name__}); train it first, or pass its path")
-    config_file = path.parent / "config.yaml"
-    if not config_file.is_file():
-        raise CheckpointError(f"{config_file}: missing beside {path.name}; a vgpl training task saves its config there, "
-                              "which rebuilds the environment (is this a checkpoint written by one?)")
-    cfg = OmegaConf.load(config_file)
-    saved_cls = cfg.get("stage_class")  # written by vgpl.tasks.stage.fit
-    if saved_cls is not None and saved_cls != f"{cls.__module__}.{cls.__name__}":
-        raise CheckpointError(f"{path}: a {saved_cls} checkpoint, expected {cls.__module__}.{cls.__name__}")
-    trained_env = cfg.env.name
-    if env is not None and trained_env != env:
-        raise CheckpointError(f"{path}: trained on env '{trained_env}', used for env '{env}'")
+    cfg = saved_config(path, cls, env)
     if n_particles is not None:
         have = scene_of(cfg).n_particles
         if have != n_particles:
@@ -48,14 +37,59 @@ def load_stage(path: str | Path, cls, env: str | None = None, n_particles: int |
     try:
         model = cls.load_from_checkpoint(str(path), map_location="cpu")
     except (RuntimeError, EOFError, KeyError, pickle.UnpicklingError) as error:  # torch's own messages do not name the file
-        lines = str(error).splitlines() if isinstance(error, RuntimeError) else []  # an unpickling error's advice is torch's, not ours
-        if lines and lines[0].startswith("Error(s) in loading state_dict"):  # read fine; its layers are not this code's
-            mismatch = "; ".join(line.strip() for line in lines[1:4] if line.strip())
-            raise CheckpointError(f"{path}: a {cls.__name__} checkpoint whose weights do not fit this code's {cls.__name__} "
-                                  f"(saved with other layer names or shapes: another net config or version; {mismatch})") from error
-        detail = f": {lines[0]}" if lines else ""
-        raise CheckpointError(f"{path}: not a readable {cls.__name__} checkpoint (truncated, or another file; {type(error).__name__}{detail})") from error
+        raise unreadable(path, cls, error) from error
     return model.eval(), cfg
+
+
+def check_resume(path: str | Path, model, env: str | None) -> None:
+    """The gate of a ``ckpt_path`` resume, run before the stage folder is touched: ``path`` must be
+    a readable checkpoint of ``model``'s class, trained on ``env``, whose weights have
+    ``model``'s names and shapes. Raises CheckpointError naming the file and what did not match
+    (Lightning's own errors name neither, and come after the stage's config and logs are written)."""
+    path = Path(path)
+    saved_config(path, type(model), env, option="ckpt_path")
+    try:
+        state = torch.load(path, map_location="cpu", weights_only=False)["state_dict"]
+    except (RuntimeError, EOFError, KeyError, TypeError, pickle.UnpicklingError) as error:
+        raise unreadable(path, type(model), error) from error
+    own = model.state_dict()
+    differ = [k for k in own if k not in state or state[k].shape != own[k].shape] + [k for k in state if k not in own]
+    if differ:
+        raise CheckpointError(f"{path}: ckpt_path: a {type(model).__name__} checkpoint whose weights do not fit this run's {type(model).__name__} "
+                              f"({', '.join(differ[:3])}{', ...' if len(differ) > 3 else ''}: another net config); resume with the config it was "
+                              "trained with, or start from its weights with init_from")
+
+
+def saved_config(path: Path, cls, env: str | None, option: str | None = None) -> DictConfig:
+    """The training config saved beside the checkpoint ``path``, once the file exists, the config
+    names ``cls`` as its stage's class and ``env`` (when given) as its env; CheckpointError
+    naming the file (and ``option``, the key that passed it) otherwise."""
+    given = f" ({option})" if option else ""
+    if not path.is_file():
+        raise CheckpointError(f"{path}{given}: no such checkpoint ({cls.__name__}); train it first, or pass its path")
+    config_file = path.parent / "config.yaml"
+    if not config_file.is_file():
+        raise CheckpointError(f"{config_file}: missing beside {path.name}{given}; a vgpl training task saves its config there, "
+                              "which rebuilds the environment (is this a checkpoint written by one?)")
+    cfg = OmegaConf.load(config_file)
+    saved_cls = cfg.get("stage_class")  # written by vgpl.tasks.stage.fit
+    if saved_cls is not None and saved_cls != f"{cls.__module__}.{cls.__name__}":
+        raise CheckpointError(f"{path}{given}: a {saved_cls} checkpoint, expected {cls.__module__}.{cls.__name__}")
+    trained_env = OmegaConf.select(cfg, "env.name")
+    if env is not None and trained_env is not None and trained_env != env:
+        raise CheckpointError(f"{path}{given}: trained on env '{trained_env}', used for env '{env}' (pass env={trained_env} to use it)")
+    return cfg
+
+
+def unreadable(path: Path, cls, error: Exception) -> CheckpointError:
+    """The CheckpointError for torch's failure ``error`` to load ``path`` as a ``cls`` checkpoint."""
+    lines = str(error).splitlines() if isinstance(error, RuntimeError) else []  # an unpickling error's advice is torch's, not ours
+    if lines and lines[0].startswith("Error(s) in loading state_dict"):  # read fine; its layers are not this code's
+        mismatch = "; ".join(line.strip() for line in lines[1:4] if line.strip())
+        return CheckpointError(f"{path}: a {cls.__name__} checkpoint whose weights do not fit this code's {cls.__name__} "
+                               f"(saved with other layer names or shapes: another net config or version; {mismatch})")
+    detail = f": {lines[0]}" if lines else ""
+    return CheckpointError(f"{path}: not a readable {cls.__name__} checkpoint (truncated, or another file; {type(error).__name__}{detail})")
 
 
 def init_weights(model, path: str | Path, spec_key: str, env: str, n_particles: int | None = None, reset: Sequence[str] = ()) -> None:

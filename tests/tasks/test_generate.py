@@ -1,7 +1,9 @@
 from __future__ import annotations
 
+import json
 import subprocess
 import sys
+from pathlib import Path
 
 import h5py
 import numpy as np
@@ -65,13 +67,13 @@ def test_killed_run_resumes_without_rewriting_finished_shards(tmp_path, monkeypa
     cfg = config(tmp_path)
     real_write, calls = gen.write_shard, []
 
-    def dying_write(path, shard, level=4):
+    def dying_write(path, shard, level=4, **place):
         if len(calls) == 2:
             # the process dies while writing the third shard: a partial temporary file is left
             path.with_name(path.name + ".tmp").write_bytes(b"partial")
             raise KeyboardInterrupt
         calls.append(path)
-        return real_write(path, shard, level)
+        return real_write(path, shard, level, **place)
 
     monkeypatch.setattr(gen, "write_shard", dying_write)
     with pytest.raises(KeyboardInterrupt):
@@ -85,6 +87,10 @@ def test_killed_run_resumes_without_rewriting_finished_shards(tmp_path, monkeypa
         validate(p)
     again = generate(cfg)
     assert again["written"] == 0 and again["skipped"] == 4
+    # the files of the resumed run are, byte for byte, those of an uninterrupted run (no time of writing in them)
+    fresh = generate(config(tmp_path / "fresh"))
+    for resumed, whole in zip(summary["shards"], fresh["shards"]):
+        assert Path(resumed).read_bytes() == Path(whole).read_bytes(), resumed
 
 
 def test_workers_split_the_shards(tmp_path):
@@ -109,9 +115,57 @@ def test_worker_processes_make_the_same_bytes(tmp_path):
 def test_changed_config_never_overwrites_existing_data(tmp_path):
     generate(config(tmp_path))
     before = (tmp_path / "rigid_fall/train/shard_00000.h5").read_bytes()
-    with pytest.raises(DatasetError, match="shard_00000.h5: exists with a different configuration"):
+    with pytest.raises(DatasetError, match="dataset.json: .*rigid_fall belongs to another configuration"):
         generate(config(tmp_path, "env.scene.param_low=[-12.0]"))
     assert (tmp_path / "rigid_fall/train/shard_00000.h5").read_bytes() == before
+
+
+def test_a_folder_written_before_claims_existed_is_not_claimed_over(tmp_path):
+    """Without a dataset.json, the shards' own config_hash still refuses another configuration,
+    and the refused run does not record itself as the folder's."""
+    generate(config(tmp_path))
+    (tmp_path / "rigid_fall/dataset.json").unlink()
+    with pytest.raises(DatasetError, match="shard_00000.h5: exists with a different configuration"):
+        generate(config(tmp_path, "seed=1"))
+    assert not (tmp_path / "rigid_fall/dataset.json").exists()
+    assert generate(config(tmp_path))["skipped"] == 4
+
+
+def test_a_shard_is_placed_only_while_its_configuration_holds_the_folder(tmp_path, monkeypatch):
+    """The claim is checked again when each shard is renamed into place: once another
+    configuration holds the folder, the next shard is refused, its temporary file removed, and
+    the shards placed before stay as they were."""
+    real_simulate, manifest = gen.simulate_shard, tmp_path / "rigid_fall/dataset.json"
+
+    def simulate_then_lose_the_folder(scene, plan, *args, **kwargs):
+        shard = real_simulate(scene, plan, *args, **kwargs)
+        if plan.index == 1:
+            manifest.write_text(json.dumps({"config_hash": "0123456789abcdef", "seed": 1}))
+        return shard
+
+    monkeypatch.setattr(gen, "simulate_shard", simulate_then_lose_the_folder)
+    with pytest.raises(DatasetError, match="dataset.json: .*another configuration \\(config_hash 0123456789abcdef, seed 1; this run: config_hash"):
+        generate(config(tmp_path))
+    train = tmp_path / "rigid_fall/train"
+    assert sorted(p.name for p in train.iterdir()) == ["shard_00000.h5"]  # shard 1 neither placed nor left as .tmp
+    assert validate(train / "shard_00000.h5")["attrs"]["seed"] == 0
+
+
+def test_two_runs_of_other_seeds_started_together_never_mix(tmp_path):
+    """Two generate processes, seeds 0 and 1, into one folder at the same time: one is refused
+    with the claim's error before it writes, and every shard carries the other run's seed."""
+    args = ["task=generate", "env=rigid_fall", "env.scene.n_steps=8", "data.n_rollouts=7", "data.shard_size=2", "data.progress=false",
+            f"data.root={tmp_path}/data", "hydra.run.dir=" + str(tmp_path / "run_${seed}")]
+    procs = [subprocess.Popen([sys.executable, str(REPO / "run.py"), *args, f"seed={seed}"], cwd=tmp_path, stdout=subprocess.PIPE,
+                              stderr=subprocess.PIPE, text=True) for seed in (0, 1)]
+    outcomes = [(p.wait(timeout=300), p.stderr.read()) for p in procs]
+    assert sorted(rc == 0 for rc, _ in outcomes) == [False, True], outcomes
+    winner = [rc for rc, _ in outcomes].index(0)
+    refused = outcomes[1 - winner][1]
+    assert "dataset.json" in refused and "belongs to another configuration" in refused
+    shards = sorted((tmp_path / "data/rigid_fall").rglob("shard_*.h5"))
+    assert len(shards) == 4 and {int(validate(p)["attrs"]["seed"]) for p in shards} == {winner}
+    assert not list((tmp_path / "data/rigid_fall").rglob("*.tmp"))
 
 
 def test_the_learned_stages_env_keys_leave_the_data_as_it_is(tmp_path):

@@ -554,3 +554,42 @@ def test_the_unconstrained_prior_trains_into_its_own_folder_and_no_rigidness_unc
                              "eval.max_observed=6", "eval.n_steps=5", *window))
     assert record["checkpoints"]["dynamics"] == str(tmp / "ckpt/dynamics_unconstrained/last.ckpt")
     assert "| VGPL w/o rigidness (unconstrained prior) |" in (tmp / "run/report.md").read_text()
+
+
+def test_evaluate_dynamics_refuses_another_envs_prior_naming_both(trained):
+    """env= is honoured: a RigidFall prior passed with env=mass_rope is refused, not evaluated on RigidFall."""
+    tmp, result = trained
+    with pytest.raises(CheckpointError, match=f"{result['checkpoint']}: trained on env 'rigid_fall', used for env 'mass_rope' \\(pass env=rigid_fall"):
+        evaluate_dynamics(config(tmp, "task=evaluate_dynamics", "env=mass_rope", f"ckpt_path={result['checkpoint']}"))
+
+
+def broken_copy(good: Path, folder: Path, kind: str) -> Path:
+    """A copy of the checkpoint ``good`` (with its config.yaml) in ``folder``: ``truncated``, or of
+    ``another env`` (its config names MassRope)."""
+    folder.mkdir(parents=True)
+    saved = OmegaConf.load(good.parent / "config.yaml")
+    if kind == "another env":
+        saved.env.name = "mass_rope"
+    OmegaConf.save(saved, folder / "config.yaml")
+    bad = folder / "last.ckpt"
+    bad.write_bytes(good.read_bytes()[: good.stat().st_size // 2] if kind == "truncated" else good.read_bytes())
+    return bad
+
+
+@pytest.mark.parametrize("kind, message", [("truncated", "not a readable DynamicsPrior checkpoint"),
+                                           ("another env", "ckpt_path\\): trained on env 'mass_rope', used for env 'rigid_fall'"),
+                                           ("another width", "ckpt_path: a DynamicsPrior checkpoint whose weights do not fit")])
+def test_a_resume_from_a_bad_checkpoint_is_refused_before_the_stage_folder_is_touched(trained, tmp_path, kind, message):
+    """ckpt_path goes through the same gate as every other checkpoint load: one CheckpointError
+    naming the file, raised before the stage folder gets a config.yaml or tensorboard/."""
+    tmp, result = trained
+    good = Path(result["checkpoint"])
+    ckpt = good if kind == "another width" else broken_copy(good, tmp_path / "copy", kind)
+    stage_folder = tmp_path / "ckpt/dynamics"
+    stage_folder.mkdir(parents=True)
+    (stage_folder / "config.yaml").write_text("kept: true\n")  # what an earlier run left there
+    width = ["model.dynamics.net.width=16"] if kind == "another width" else []
+    with pytest.raises(CheckpointError, match=f"{ckpt}.*{message}"):
+        train_dynamics(config(tmp, "task=train_dynamics", f"paths.ckpt_dir={tmp_path}/ckpt", f"ckpt_path={ckpt}", *width))
+    assert sorted(p.name for p in stage_folder.iterdir()) == ["config.yaml"]
+    assert (stage_folder / "config.yaml").read_text() == "kept: true\n"

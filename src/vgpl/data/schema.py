@@ -13,7 +13,8 @@ import numpy as np
 
 FORMAT_VERSION = 1
 
-# attribute name -> description (all required)
+# attribute name -> description (all required). No time of writing: a shard file's bytes depend on its
+# configuration alone, so a resumed generation writes the same files as an uninterrupted one.
 ATTRS = {
     "format_version": "int schema version",
     "env": "environment name",
@@ -29,7 +30,6 @@ ATTRS = {
     "split": "train or test",
     "shard": "shard index within the split",
     "config_hash": "hash of everything that determines the content",
-    "created": "ISO time of writing",
 }
 
 # dataset name -> (dtype kind, shape template); R rollouts, T frames, N particles, M instances,

@@ -2,9 +2,8 @@
 
 from __future__ import annotations
 
-import datetime
 import os
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -30,9 +29,12 @@ class Shard:
     attrs: dict
 
 
-def write_shard(path: str | Path, shard: Shard, compression_level: int = 4) -> Path:
+def write_shard(path: str | Path, shard: Shard, compression_level: int = 4, place: Callable[[Path, Path], None] = os.replace) -> Path:
     """Write ``shard`` to ``path`` through a temporary file and an atomic rename; a shard with
-    non-finite values or parameters outside its range is refused before anything is written."""
+    non-finite values or parameters outside its range is refused before anything is written.
+    ``place(tmp, path)`` does the rename (task=generate's checks the dataset folder's claim first
+    and removes ``tmp`` when it refuses). The file holds no time of writing: the same shard makes
+    the same bytes."""
     path = Path(path)
     check_values(path, {key: getattr(shard, key) for key in DATASETS}, shard.attrs["param_low"], shard.attrs["param_high"])
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -41,7 +43,6 @@ def write_shard(path: str | Path, shard: Shard, compression_level: int = 4) -> P
         **shard.attrs,
         "format_version": FORMAT_VERSION,
         "generator_version": __version__,
-        "created": datetime.datetime.now(datetime.timezone.utc).isoformat(),
     }
     with h5py.File(tmp, "w") as f:
         for key in DATASETS:
@@ -53,7 +54,7 @@ def write_shard(path: str | Path, shard: Shard, compression_level: int = 4) -> P
             f.create_dataset("images", data=shard.images, chunks=(1, 1, h, w, c), compression="gzip", compression_opts=compression_level)
         for k, v in attrs.items():
             f.attrs[k] = v
-    os.replace(tmp, path)
+    place(tmp, path)
     return path
 
 

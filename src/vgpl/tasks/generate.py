@@ -4,7 +4,8 @@ Rollout g (0 <= g < n_rollouts) always gets the seed stream SeedSequence(seed, s
 whatever the sharding, so shards never repeat a rollout and any worker can make any shard.
 Rollouts [0, n_train) form the train split, the rest the test split. A shard that already exists
 with the same configuration is skipped (resume); ``data.worker`` / ``data.num_workers`` split the
-shards between processes or Hydra multirun jobs.
+shards between processes or Hydra multirun jobs. A run of another configuration into the same
+folder is refused, also while the first is running (vgpl.data.dataset_claim).
 """
 
 from __future__ import annotations
@@ -26,6 +27,7 @@ import torch
 from omegaconf import DictConfig, OmegaConf
 from tqdm import tqdm
 
+from vgpl.data.dataset_claim import DatasetClaim
 from vgpl.data.shard import Shard, shard_is_complete, write_shard
 from vgpl.sim.scene import Scene
 
@@ -134,14 +136,22 @@ def config_hash(env_cfg: DictConfig, data_cfg: DictConfig, seed: int) -> str:
     return hashlib.sha256(blob.encode()).hexdigest()[:16]
 
 
+def dataset_claim(cfg: DictConfig, env: str, digest: str) -> DatasetClaim:
+    """The claim of this run's configuration on ``data.root/<env>``."""
+    data = cfg.data
+    return DatasetClaim(Path(data.root) / env, digest, {"env": env, "seed": cfg.seed,
+                                                        **{k: data[k] for k in ("n_rollouts", "train_fraction", "shard_size", "render")}})
+
+
 def make_shard(cfg: DictConfig, plan: ShardPlan, digest: str, threads: int, progress=None) -> ShardPlan:
-    """Simulate, render and write one shard (also the body of a worker process)."""
+    """Simulate, render and write one shard (also the body of a worker process); it is renamed
+    into place only while the folder is still claimed by this configuration."""
     torch.set_num_threads(threads)
     scene: Scene = hydra.utils.instantiate(cfg.env.scene)
     data = cfg.data
     shard = simulate_shard(scene, plan, cfg.seed, data.batch_size, data.render, cfg.device, progress)
     shard.attrs = {**scene_attrs(scene, cfg.seed), "split": plan.split, "shard": plan.index, "config_hash": digest}
-    write_shard(plan.path(Path(data.root) / scene.name), shard, data.compression_level)
+    write_shard(plan.path(Path(data.root) / scene.name), shard, data.compression_level, place=dataset_claim(cfg, scene.name, digest).place)
     return plan
 
 
@@ -161,7 +171,7 @@ def generate(cfg: DictConfig) -> dict:
     root = Path(data.root) / scene.name
     check_writable(root)
     digest = config_hash(cfg.env, data, cfg.seed)
-    todo = [p for p in plans if not shard_is_complete(p.path(root), digest)]
+    todo = dataset_claim(cfg, scene.name, digest).claim(lambda: [p for p in plans if not shard_is_complete(p.path(root), digest)])
     log.info("%s: %d shard(s) for this worker, %d already complete, writing %d under %s", scene.name, len(plans), len(plans) - len(todo), len(todo), root)
     start = time.perf_counter()
     n_rollouts = sum(len(p.rollouts) for p in todo)

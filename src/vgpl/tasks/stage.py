@@ -12,6 +12,7 @@ from lightning.pytorch.callbacks import Callback, ModelCheckpoint, Timer
 from lightning.pytorch.loggers import TensorBoardLogger
 from omegaconf import DictConfig, OmegaConf
 
+from vgpl.checkpoint import check_resume
 from vgpl.hardware import precision_warning
 from vgpl.models.step_learning_rate import training_clock
 from vgpl.weight_averaging import ExponentialMovingAverage
@@ -66,6 +67,15 @@ def fit(cfg: DictConfig, stage: str, stage_cfg: DictConfig, model: L.LightningMo
     """
     check_batch_size(stage, stage_cfg)
     folder = stage_dir(cfg, stage)
+    ckpt_path = cfg.get("ckpt_path")
+    if ckpt_path == "last":
+        if (folder / "last.ckpt").is_file():
+            ckpt_path = folder / "last.ckpt"
+        else:
+            log.info("%s: no last.ckpt yet, starting from scratch", folder)
+            ckpt_path = None
+    if ckpt_path is not None:
+        check_resume(ckpt_path, model, OmegaConf.select(cfg, "env.name"))  # before the folder gets this run's config and logs
     folder.mkdir(parents=True, exist_ok=True)
     saved = OmegaConf.to_container(cfg, resolve=True)
     saved["stage"] = stage
@@ -87,11 +97,7 @@ def fit(cfg: DictConfig, stage: str, stage_cfg: DictConfig, model: L.LightningMo
     warning = precision_warning(str(kwargs.get("precision")), str(kwargs.get("accelerator", "auto")), torch.cuda.is_available())
     if warning:
         log.warning(warning)
-    ckpt_path = cfg.get("ckpt_path")
-    if ckpt_path == "last" and not (folder / "last.ckpt").is_file():
-        log.info("%s: no last.ckpt yet, starting from scratch", folder)
-        ckpt_path = None
-    trainer.fit(model, datamodule, ckpt_path=ckpt_path)
+    trainer.fit(model, datamodule, ckpt_path=None if ckpt_path is None else str(ckpt_path))
     trainer.save_checkpoint(folder / "last.ckpt")  # also when validation never ran (tiny runs)
     ended = stopping(trainer)
     if ended["stopped_by"] == "max_time":

@@ -112,7 +112,7 @@ def window_start(override: int | None, trained: int, n_frames: int) -> int:
 def evaluate_dynamics(cfg: DictConfig) -> dict:
     if cfg.get("ckpt_path") in (None, "???"):
         raise ValueError("task=evaluate_dynamics needs ckpt_path=<path to a .ckpt>")
-    model, train_cfg = load_dynamics(cfg.ckpt_path)
+    model, train_cfg = load_dynamics(cfg.ckpt_path, env=cfg.env.name)  # env= is honoured: another env's prior is refused, naming both
     scene = scene_of(train_cfg)
     root = cfg.data.root
     test = load_split(root, scene.name, "test")
