@@ -328,3 +328,41 @@ def test_pooled_windows_read_from_the_export_give_the_visual_priors_numbers(tiny
         if key.startswith(("param_mae", "future_mse", "refine_mse", "rigidness_prob")):
             assert read[key] == pytest.approx(value, rel=1e-4, abs=1e-6), key
     assert by_video["refine_mse_x1e4_before"] != pytest.approx(full["refine_mse_x1e4_before"], rel=1e-3)
+
+
+def test_grounding_a_test_video_from_its_frames_alone_gives_the_evaluations_numbers(tiny, tmp_path):
+    """vgpl.Grounder and task=ground, fed only the frames of test videos (a shard's rollout, and the
+    same frames as a folder of PNGs), give the gravity and the future that task=evaluate gave the
+    same videos from the same checkpoints."""
+    import cv2
+    import torch
+    from PIL import Image
+
+    from vgpl import Grounder
+    from vgpl.data.shard import read_shard
+    from vgpl.eval.tables import read_params_csv
+    from vgpl.tasks.ground import ground
+
+    tmp, _ = tiny
+    shard = tmp / "data/quick/rigid_fall/test/shard_00000.h5"
+    videos = read_shard(shard, images=True, rollouts=4)
+    evaluated = read_params_csv(tmp / "run/evaluate/full/params.csv", ["gravity"], ["future_mse_x1e4@10"])
+    grounder = Grounder.from_checkpoints(tmp / "checkpoints/quick/rigid_fall")
+    for k in range(4):
+        g = grounder.ground(videos.images[k], n_future=10)
+        row = evaluated.rollout_ids.index(int(videos.rollout_ids[k]))
+        assert g.params["gravity"] == pytest.approx(float(evaluated.inferred[row, 0]), rel=1e-4)
+        mse = float(((g.future[9] - torch.as_tensor(videos.positions[k, 19])) ** 2).mean() * 1e4)  # T+10 after 10 observed frames
+        assert mse == pytest.approx(float(evaluated.columns["future_mse_x1e4@10"][row]), rel=1e-3)
+    frames = tmp_path / "frames"
+    frames.mkdir()
+    for t, image in enumerate(videos.images[3]):
+        cv2.imwrite(str(frames / f"{t:04d}.png"), cv2.cvtColor(image, cv2.COLOR_RGB2BGR))
+    for video, extra in ((shard, ["task.rollout=3"]), (frames, [])):
+        out = tmp_path / ("from_" + video.name.split(".")[0])
+        ground(config(tmp, "task=ground", f"task.video={video}", "task.n_future=10", f"paths.output_dir={out}", *extra))
+        record = json.loads((out / "grounding.json").read_text())
+        assert record["params"]["gravity"] == pytest.approx(g.params["gravity"], abs=1e-6)
+        assert record["rigidness"] == pytest.approx({f"{m}:cube": float(q) for m, q in enumerate(g.rigidness)}, abs=1e-6)
+        gif = Image.open(out / "grounding.gif")
+        assert gif.n_frames == 20 and gif.size == (320, 120)  # 10 observed + 10 predicted; the video beside the estimate

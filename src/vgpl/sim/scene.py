@@ -142,6 +142,14 @@ class Scene:
         """Impose kinematic particles at fractional frame time ``frame``; returns p."""
         return p
 
+    def kinematic_positions(self, positions: torch.Tensor, actions: torch.Tensor) -> torch.Tensor:
+        """positions [B, T, N, 3] with the kinematic particles (the pin) put where the actions
+        [B, T, A] drive them at each frame, as the engine records them; the others unchanged."""
+        if not self.kinematic.any():
+            return positions
+        ctx = {"actions": actions}
+        return torch.stack([self.kinematics(positions[:, t], ctx, float(t)) for t in range(positions.shape[1])], 1)
+
     def project(self, p: torch.Tensor, x: torch.Tensor, ctx: dict, pairs: dict, frame: float) -> torch.Tensor:
         raise NotImplementedError
 

@@ -20,6 +20,7 @@ TASKS: dict[str, str] = {
     "train_inference": "vgpl.tasks.train_inference:train_inference",
     "train_baseline": "vgpl.tasks.baseline:train_baseline",
     "evaluate": "vgpl.tasks.evaluate:evaluate",
+    "ground": "vgpl.tasks.ground:ground",
     "report": "vgpl.tasks.evaluate:report",
     "free_fall_gravity": "vgpl.tasks.free_fall:free_fall_gravity",
     "pipeline": "vgpl.tasks.pipeline:pipeline",

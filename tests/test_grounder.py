@@ -1,0 +1,115 @@
+"""Grounder's input checks and task=ground's video reading, on small untrained modules (the
+trained pipeline's grounding, equal to task=evaluate's, is tests/tasks/test_pipeline.py)."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import pytest
+import torch
+
+import vgpl
+from tests.conftest import simulate
+from vgpl.data.video_file import VideoFileError, read_actions, read_video
+from vgpl.grounder import Grounder, GroundingInputError
+from vgpl.models.dynamics_prior import DynamicsPrior
+from vgpl.models.inference import InferenceModule
+from vgpl.models.visual_prior import VisualPrior
+from vgpl.sim.envs import make_scene
+
+
+def small_grounder(env: str, observed: int = 6) -> Grounder:
+    scene = make_scene(env, n_steps=16)
+    low, high = scene.param_low.tolist(), scene.param_high.tolist()
+    torch.manual_seed(0)
+    dynamics = DynamicsPrior(low, high, scene.n_instances, 0.08, width=8)
+    visual = VisualPrior(scene.n_particles, scene.n_instances, channels=[4, 4, 4, 4], hidden=16)
+    inference = InferenceModule(low, high, scene.n_particles, scene.n_instances, 0.08, width=8, max_neighbors=8)
+    return Grounder(visual, inference, dynamics, scene, observed=observed)
+
+
+def test_vgpl_grounder_is_the_grounder():
+    assert vgpl.Grounder is Grounder
+
+
+def test_a_video_is_grounded_from_its_frames_into_every_estimate():
+    """Shapes and units of every output, from frames alone (untrained modules: the values are not the point)."""
+    grounder = small_grounder("rigid_fall")
+    scene, (traj) = grounder.scene, simulate("rigid_fall", n_steps=16)[1]
+    frames = scene.renderer().render(traj.positions[0]).numpy()
+    g = grounder.ground(frames, n_future=5)
+    n, m = scene.n_particles, scene.n_instances
+    assert g.positions.shape == (6, n, 3) and g.proposals.shape == (6, n, 3) and g.future.shape == (5, n, 3)
+    assert g.grouping.shape == (n, m) and torch.allclose(g.grouping.sum(-1), torch.ones(n))
+    assert g.rigidness.shape == (m,) and bool(((g.rigidness > 0) & (g.rigidness < 1)).all())
+    assert set(g.params) == {"gravity"} and -15.0 <= g.params["gravity"] <= -5.0  # tanh-bounded to the range, in m/s^2
+    record = g.to_json()
+    assert record["observed"] == 6 and record["n_future"] == 5 and len(record["instance"]) == n
+    assert np.array(record["future"]).shape == (5, n, 3)
+
+
+@pytest.mark.parametrize("frames, message", [
+    (np.zeros((16, 60, 80, 3), np.uint8), r"frames: uint8 \[16, 60, 80, 3\], expected uint8 \[T >= 6, 120, 160, 3\]"),
+    (np.zeros((16, 120, 160, 3), np.float32), r"frames: float32 \[16, 120, 160, 3\], expected uint8"),
+    (np.zeros((5, 120, 160, 3), np.uint8), r"frames: 5 frames, expected at least 6 \(0 skipped \+ 6 observed\)"),
+])
+def test_frames_of_another_size_type_or_length_are_refused_saying_what_was_expected(frames, message):
+    with pytest.raises(GroundingInputError, match=message):
+        small_grounder("rigid_fall").ground(frames, n_future=5)
+
+
+def test_an_actuated_scene_needs_its_actions_and_a_still_one_refuses_them():
+    rope = small_grounder("mass_rope")
+    frames = np.zeros((16, 120, 160, 3), np.uint8)
+    with pytest.raises(GroundingInputError, match=r"actions: missing; mass_rope is driven by an actuator: expected \[11, 6\]"):
+        rope.ground(frames, n_future=5)
+    with pytest.raises(GroundingInputError, match=r"actions: \[8, 6\], expected \[>= 11, 6\]"):
+        rope.ground(frames, np.zeros((8, 6)), n_future=5)
+    with pytest.raises(GroundingInputError, match="actions: given, but rigid_fall has no actuator"):
+        small_grounder("rigid_fall").ground(frames, np.zeros((16, 6)), n_future=5)
+
+
+def test_the_actuated_particles_follow_the_actions_given():
+    """MassRope's pin is where the actions put it, in the refined frames and the future: the
+    engine's own placement (Scene.kinematic_positions), no ground truth read."""
+    grounder = small_grounder("mass_rope")
+    scene, traj = grounder.scene, simulate("mass_rope", n_steps=16)[1]
+    frames = scene.renderer().render(traj.positions[0]).numpy()
+    g = grounder.ground(frames, traj.actions[0].numpy(), n_future=5)
+    pin = torch.as_tensor(scene.kinematic)
+    assert torch.equal(g.positions[:, pin], traj.positions[0, :6, pin])
+    assert torch.equal(g.future[:, pin], traj.positions[0, 6:11, pin])
+
+
+def test_video_files_and_png_folders_are_read_as_rgb_frames(tmp_path):
+    frames = np.zeros((4, 120, 160, 3), np.uint8)
+    frames[:, :, :80, 0] = 200  # red left half: RGB order is kept
+    frames[np.arange(4), 10 * np.arange(4)] = 255  # a white row moving down
+    for k, f in enumerate(frames):
+        cv2.imwrite(str(tmp_path / f"frame_{k:03d}.png"), cv2.cvtColor(f, cv2.COLOR_RGB2BGR))
+    read, actions = read_video(tmp_path)
+    assert actions is None and np.array_equal(read, frames)  # PNG is lossless
+    writer = cv2.VideoWriter(str(tmp_path / "v.mp4"), cv2.VideoWriter_fourcc(*"mp4v"), 10, (160, 120))
+    for f in frames:
+        writer.write(cv2.cvtColor(f, cv2.COLOR_RGB2BGR))
+    writer.release()
+    video, _ = read_video(tmp_path / "v.mp4")
+    assert video.shape == frames.shape and np.abs(video.astype(int) - frames).mean() < 8  # lossy, but these frames
+    assert video[0, 60, 20, 0] > 150 and video[0, 60, 140, 0] < 50
+
+
+def test_unreadable_videos_and_actions_are_named(tmp_path):
+    with pytest.raises(VideoFileError, match="nope.mp4: no such video"):
+        read_video(tmp_path / "nope.mp4")
+    (tmp_path / "clip.gif").write_bytes(b"GIF89a")
+    with pytest.raises(VideoFileError, match="clip.gif: a .gif file, expected one of .mp4"):
+        read_video(tmp_path / "clip.gif")
+    (tmp_path / "broken.mp4").write_bytes(b"not a video")
+    with pytest.raises(VideoFileError, match="broken.mp4: no frame could be decoded"):
+        read_video(tmp_path / "broken.mp4")
+    (tmp_path / "empty").mkdir()
+    with pytest.raises(VideoFileError, match="empty: no \\*.png frames"):
+        read_video(tmp_path / "empty")
+    np.save(tmp_path / "a.npy", np.zeros(5))
+    with pytest.raises(VideoFileError, match=r"a.npy: actions of shape \[5\], expected \[T, A\]"):
+        read_actions(tmp_path / "a.npy")
