@@ -113,3 +113,16 @@ def test_unreadable_videos_and_actions_are_named(tmp_path):
     np.save(tmp_path / "a.npy", np.zeros(5))
     with pytest.raises(VideoFileError, match=r"a.npy: actions of shape \[5\], expected \[T, A\]"):
         read_actions(tmp_path / "a.npy")
+
+
+def test_a_test_time_fit_moves_the_estimate_towards_the_videos_own_frames():
+    """With steps > 0 the grounder's P differs from the amortised one (untrained modules: the
+    direction is not the point; tests/eval/test_test_time_fit.py checks it finds the truth)."""
+    from vgpl.eval.test_time_fit import TestTimeFit
+
+    grounder = small_grounder("rigid_fall")
+    frames = grounder.scene.renderer().render(simulate("rigid_fall", n_steps=16)[1].positions[0]).numpy()
+    amortised = grounder.ground(frames, n_future=3)
+    fitted = grounder.ground(frames, n_future=3, test_time_fit=TestTimeFit(steps=5, lr=0.5))
+    assert fitted.params["gravity"] != pytest.approx(amortised.params["gravity"], abs=1e-3)
+    assert torch.equal(fitted.positions, amortised.positions)  # only P and Q are fitted

@@ -25,6 +25,7 @@ from vgpl.checkpoint import load_stage, scene_of
 from vgpl.data.window_pool import pool_windows
 from vgpl.eval.grounding import observed_proposals
 from vgpl.eval.rollout import rollout
+from vgpl.eval.test_time_fit import TestTimeFit, fit_to_own_frames
 from vgpl.models.dynamics_prior import DynamicsPrior
 from vgpl.models.inference import InferenceModule
 from vgpl.models.visual_prior import VisualPrior
@@ -114,9 +115,11 @@ class Grounder:
                                       f"({self.frames_needed} observed and skipped + {n_future} predicted frames)")
 
     @torch.no_grad()
-    def ground(self, frames, actions=None, n_future: int = 20) -> Grounding:
+    def ground(self, frames, actions=None, n_future: int = 20, test_time_fit: TestTimeFit | None = None) -> Grounding:
         """Ground one video: frames uint8 [T, H, W, 3] (numpy or torch), actions [T', A] where the
-        scene has an actuator (None otherwise); ``n_future`` frames predicted after the observed ones."""
+        scene has an actuator (None otherwise); ``n_future`` frames predicted after the observed ones.
+        ``test_time_fit`` (steps > 0) refines P and Q against the video's own refined frames
+        (vgpl.eval.test_time_fit) before the future is rolled."""
         frames = torch.as_tensor(np.asarray(frames))
         actions = None if actions is None else torch.as_tensor(np.asarray(actions), dtype=torch.float32)
         if not isinstance(n_future, int) or n_future < 1:
@@ -129,6 +132,14 @@ class Grounder:
         n_actions = s + t + n_future
         acts = (actions[None, :n_actions] if actions is not None else torch.zeros(1, n_actions, 0))
         refined = self.scene.kinematic_positions(out["positions"], acts[:, s : s + t])  # the actuator's particles where it drives them
+        if test_time_fit is not None and test_time_fit.steps > 0:
+            fit_q = test_time_fit.rigidness and self.inference.estimator == "blend"
+            fitted = fit_to_own_frames(self.dynamics, refined, out["grouping"], out["rigidness_prob"], out["params_normalised"],
+                                       self.scene.planes_at(acts[:, s : s + t]), torch.as_tensor(self.scene.kinematic),
+                                       TestTimeFit(test_time_fit.steps, test_time_fit.lr, fit_q), self.inference.to_physical)
+            out["params"] = self.inference.to_physical(fitted["params_normalised"])
+            if fit_q:
+                out["rigidness_prob"], out["rigidness"] = fitted["rigidness"], self.inference.prior_rigidness(fitted["rigidness"])
         driven = self.scene.kinematic_positions(torch.zeros(1, n_future, *refined.shape[2:]), acts[:, s + t :])
         future = rollout(self.dynamics, torch.cat([refined[:, -h:], driven], 1), out["grouping"], out["rigidness"], out["params"],
                          self.scene.planes_at(acts[:, s + t - h :]), torch.as_tensor(self.scene.kinematic), n_future)

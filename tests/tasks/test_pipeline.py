@@ -366,3 +366,22 @@ def test_grounding_a_test_video_from_its_frames_alone_gives_the_evaluations_numb
         assert record["rigidness"] == pytest.approx({f"{m}:cube": float(q) for m, q in enumerate(g.rigidness)}, abs=1e-6)
         gif = Image.open(out / "grounding.gif")
         assert gif.n_frames == 20 and gif.size == (320, 120)  # 10 observed + 10 predicted; the video beside the estimate
+
+
+def test_a_test_time_fit_is_a_row_of_its_own_with_its_cost_per_video(tiny, tmp_path):
+    """eval.test_time_fit.steps > 0: P and Q refit to each video's own refined frames lower that
+    error, change P and not the refinement, and report as "VGPL + test-time fit" beside VGPL."""
+    tmp, _ = tiny
+    fitted = evaluate(config(tmp, "task=evaluate", "eval.test_time_fit.steps=20", f"paths.output_dir={tmp_path}/fit/full"))
+    full = json.loads((tmp / "run/evaluate/full/metrics.json").read_text())
+    assert fitted["test_time_fit"] == {"steps": 20, "lr": 0.05, "rigidness": True} and fitted["test_time_fit_seconds_per_video"] > 0
+    assert fitted["own_frames_error_after_fit"] < fitted["own_frames_error_before_fit"]
+    assert fitted["param_mae_pct"] != full["param_mae_pct"]
+    assert fitted["refine_mse_x1e4_after"] == pytest.approx(full["refine_mse_x1e4_after"], rel=1e-6)
+    (tmp_path / "fit/vgpl").mkdir()
+    (tmp_path / "fit/vgpl/metrics.json").write_text(json.dumps(full))
+    report(config(tmp, "task=report", f"task.dir={tmp_path}/fit", f"paths.output_dir={tmp_path}/report"))
+    text = (tmp_path / "report/report.md").read_text()
+    row = next(line for line in text.splitlines() if line.startswith("| VGPL + test-time fit |"))
+    assert f"{fitted['param_mae_pct']:.1f}% ({fitted['param_mae_pct_std']:.1f})" in row
+    assert "| rigid_fall | VGPL + test-time fit |" in text  # paired against VGPL on the same videos

@@ -3,6 +3,7 @@ prediction (Table 2), rigidness against observation length, refinement before/af
 
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -15,6 +16,7 @@ from vgpl.data.window_pool import check_window_pool, pool_windows
 from vgpl.eval.error_sources import RolloutInputs, error_sources
 from vgpl.eval.metrics import correct_rigidness_prob, mean_per_type, midpoint_error_pct, param_signed_error_pct, position_mse_x1e4
 from vgpl.eval.rollout import future_mse, rollout
+from vgpl.eval.test_time_fit import TestTimeFit, fit_to_own_frames
 
 
 @dataclass
@@ -53,7 +55,8 @@ def evaluate_grounding(dynamics, visual, inference, scene, test: Rollouts, ablat
                        max_observed: int = 20, start_frame: int = 0, seed: int = 0, chunk: int = 8,
                        curve_rollouts: int | None = None, truth_noise_std: float = 0.0,
                        rigidness_curve: dict | None = None, trace_sources: bool = False,
-                       exported: tuple[torch.Tensor, ...] | None = None, progress: bool = False, window_pool: str = "last") -> GroundingResult:
+                       exported: tuple[torch.Tensor, ...] | None = None, progress: bool = False, window_pool: str = "last",
+                       test_time_fit: TestTimeFit | None = None) -> GroundingResult:
     """Infer from ``observed`` frames of each test video (from ``start_frame``), roll ``n_steps`` on.
     The inference module runs on ``chunk`` videos at a time (bounded memory; same numbers).
     ``visual=None`` replaces the visual prior by the recorded particles plus ``truth_noise_std``
@@ -62,7 +65,9 @@ def evaluate_grounding(dynamics, visual, inference, scene, test: Rollouts, ablat
     [R, T, F, N, 3] of frames [0, T) as task=export_proposals wrote them (``exported_proposals``),
     used instead of ``visual``. ``window_pool`` reads every observed window (the T = ``observed``
     one and the rigidness curve's) from the visual prior's windows as ``pool_windows`` does; it
-    must be the pool the inference module was trained on.
+    must be the pool the inference module was trained on. ``test_time_fit`` with steps > 0 refines
+    each video's P (and Q, where the ablation infers it) against its own refined frames after the
+    inference module's estimate (vgpl.eval.test_time_fit); the rigidness curve stays the module's.
 
     ``ablation`` has booleans rigidness, refinement, params. The rigidness curve is measured for
     T = 1 .. ``max_observed`` when the ablation infers rigidness, on the first ``curve_rollouts``
@@ -112,6 +117,18 @@ def evaluate_grounding(dynamics, visual, inference, scene, test: Rollouts, ablat
     out = infer_in_chunks(inference, seen_proposals, logits[:, :observed], kinematic, chunk, refinement=bool(ablation.refinement),
                            rigidness=bool(ablation.rigidness), params=bool(ablation.params), generator=gen)
     metrics = {}
+    x = torch.where(kinematic[None, None, :, None], truth_seen, out["positions"])  # the actuators' particles are known
+    if test_time_fit is not None and test_time_fit.steps > 0 and ablation.params:
+        fit_q = bool(test_time_fit.rigidness and ablation.rigidness and inference.estimator == "blend")
+        started = time.perf_counter()
+        fitted = fit_to_own_frames(dynamics, x, out["grouping"], out["rigidness_prob"], out["params_normalised"], scene.planes_at(test.actions[:, seen]),
+                                   kinematic, TestTimeFit(test_time_fit.steps, test_time_fit.lr, fit_q), inference.to_physical, chunk)
+        metrics["test_time_fit_seconds_per_video"] = (time.perf_counter() - started) / len(x)
+        metrics["own_frames_error_before_fit"] = float(fitted["error_before"].mean())
+        metrics["own_frames_error_after_fit"] = float(fitted["error_after"].mean())
+        out["params_normalised"], out["params"] = fitted["params_normalised"], inference.to_physical(fitted["params_normalised"])
+        if fit_q:
+            out["rigidness_prob"], out["rigidness"] = fitted["rigidness"], inference.prior_rigidness(fitted["rigidness"])
     # Table 1: parameters
     signed = param_signed_error_pct(out["params"], test.params, test.param_low, test.param_high)
     err = signed.abs().mean(1)
@@ -126,7 +143,6 @@ def evaluate_grounding(dynamics, visual, inference, scene, test: Rollouts, ablat
     # grouping accuracy of the visual prior
     metrics["grouping_accuracy"] = float((out["grouping"].argmax(-1) == test.instance[None]).float().mean())
     # Table 2: future prediction from the last h refined frames
-    x = torch.where(kinematic[None, None, :, None], truth_seen, out["positions"])
     frames = slice(start_frame + observed - h, start_frame + observed + n_steps)
     driven = torch.cat([x[:, -h:], test.positions[:, start_frame + observed : frames.stop]], 1)
     planes = scene.planes_at(test.actions[:, frames])

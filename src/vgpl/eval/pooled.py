@@ -13,11 +13,13 @@ import numbers
 def variant(record: dict) -> tuple[str, str, str]:
     """(method, ablation, env): what one row of a table and one pooled record stand for. DensePhysNet's
     "ablation" is the flow it learned: ``full`` on flow estimated from the frames, ``simulator_flow``
-    on the simulator's privileged flow (records without the key were trained on it)."""
+    on the simulator's privileged flow (records without the key were trained on it). A VGPL
+    evaluation with a test-time fit is its ablation's ``+test_time_fit`` variant."""
     method = record.get("method", "vgpl")
     if method == "densephysnet":
         return method, "full" if record.get("flow", "simulator") != "simulator" else "simulator_flow", record["env"]
-    return method, record.get("ablation", "full"), record["env"]
+    fitted = "+test_time_fit" if (record.get("test_time_fit") or {}).get("steps") else ""
+    return method, record.get("ablation", "full") + fitted, record["env"]
 
 
 def pool_runs(records: list[dict]) -> list[dict]:

@@ -12,6 +12,7 @@ from __future__ import annotations
 import hashlib
 import json
 import logging
+from dataclasses import asdict
 from pathlib import Path
 
 import torch
@@ -31,6 +32,7 @@ from vgpl.eval.preview import write_gif
 from vgpl.eval.rollout import FUTURE
 from vgpl.eval.tables import HORIZONS, PER_VIDEO, csv_text, markdown, param_rows, write_tables
 from vgpl.eval.tensorboard_media import add_gif, rollout_video
+from vgpl.eval.test_time_fit import TestTimeFit
 from vgpl.models.dynamics_prior import DynamicsPrior
 from vgpl.models.inference import InferenceModule
 from vgpl.models.visual_prior import VisualPrior
@@ -69,6 +71,7 @@ def evaluate(cfg: DictConfig) -> dict:
         return evaluate_baseline(cfg)
     if cfg.model.name != "vgpl":
         raise ValueError(f"model.name='{cfg.model.name}': expected vgpl or densephysnet")
+    fit = TestTimeFit(**(cfg.eval.get("test_time_fit") or {}))  # refused by its key before anything is loaded
     source, noise_std = proposal_source(cfg.eval.get("proposals", "visual"), cfg.eval.get("proposals_noise_std", 0.0),
                                         "eval.proposals", "eval.proposals_noise_std", exported=True)
     scene = scene_of(cfg)
@@ -100,8 +103,9 @@ def evaluate(cfg: DictConfig) -> dict:
                                 curve_rollouts=cfg.eval.get("curve_rollouts"), truth_noise_std=noise_std,
                                 rigidness_curve=None if reused is None else reused_rigidness_curve(reused, measured_on),
                                 trace_sources=bool(cfg.eval.get("error_sources", False)), exported=exported,
-                                progress=bool(cfg.data.get("progress", True)), window_pool=window_pool)
-    record = {"env": env, "method": "vgpl", "ablation": cfg.ablation.name, "n_test": int(test.positions.shape[0]),
+                                progress=bool(cfg.data.get("progress", True)), window_pool=window_pool, test_time_fit=fit)
+    record = {"env": env, "method": "vgpl", "ablation": cfg.ablation.name, **({"test_time_fit": asdict(fit)} if fit.steps else {}),
+              "n_test": int(test.positions.shape[0]),
               "observed": observed, "proposals": source, "proposals_noise_std": noise_std, "window_pool": window_pool,
               "checkpoints": {k: str(v) for k, v in paths.items() if v is not None}, **result.metrics, "rigidness_curve": result.rigidness_curve}
     if result.rigidness_curve:

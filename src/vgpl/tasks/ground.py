@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import logging
+from dataclasses import asdict
 from pathlib import Path
 
 import numpy as np
@@ -14,6 +15,7 @@ from omegaconf import DictConfig
 
 from vgpl.data.video_file import read_actions, read_video
 from vgpl.eval.preview import write_gif
+from vgpl.eval.test_time_fit import TestTimeFit
 from vgpl.grounder import Grounder, Grounding
 from vgpl.tasks.stage import setup_run
 
@@ -29,10 +31,12 @@ def ground(cfg: DictConfig) -> dict:
     frames, actions = read_video(spec.video, int(spec.get("rollout", 0)))
     if spec.get("actions"):
         actions = read_actions(spec.actions)
-    grounding = grounder.ground(frames, actions, int(spec.n_future))
+    fit = TestTimeFit(**(cfg.eval.get("test_time_fit") or {}))
+    grounding = grounder.ground(frames, actions, int(spec.n_future), fit)
     out = Path(cfg.paths.output_dir)
     out.mkdir(parents=True, exist_ok=True)
-    record = {"video": str(spec.video), **({"rollout": int(spec.rollout)} if str(spec.video).endswith(".h5") else {}), **grounding.to_json()}
+    record = {"video": str(spec.video), **({"rollout": int(spec.rollout)} if str(spec.video).endswith(".h5") else {}),
+              **({"test_time_fit": asdict(fit)} if fit.steps else {}), **grounding.to_json()}
     (out / "grounding.json").write_text(json.dumps(record, indent=1))
     write_gif(side_by_side(grounder.scene, frames, grounding), out / "grounding.gif", fps=10)
     summary = {"env": grounding.env, "params": grounding.params, "rigidness": record["rigidness"], "output_dir": str(out)}

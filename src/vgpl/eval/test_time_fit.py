@@ -1,0 +1,89 @@
+"""Test-time fit: refine one video's physical parameters P (and rigidness Q) by gradient through
+the frozen dynamics prior, against that video's own refined frames. No ground truth: the target
+is what the inference module made of the observed frames.
+
+The amortised estimate (the inference module's) is the start. The prior is rolled from the first
+``history`` refined frames through the rest of the observed window; the loss is the L1 between
+that rollout and the refined frames, in units of the prior's displacement std, over the movable
+particles. P is optimised as tanh(u) over its normalised range, so it never leaves the range; Q as
+sigmoid(v). Each video has its own P and Q, and Adam is elementwise, so videos fitted together
+in one batch do not affect each other.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+
+from vgpl.eval.rollout import rollout
+
+
+@dataclass
+class TestTimeFit:
+    """The fit's settings: ``steps`` Adam steps (0: off) at rate ``lr`` on the pre-activations of
+    P and, with ``rigidness``, of Q."""
+
+    steps: int = 0
+    lr: float = 0.05
+    rigidness: bool = True
+
+    __test__ = False  # not a pytest class
+
+    def __post_init__(self) -> None:
+        if isinstance(self.steps, bool) or not isinstance(self.steps, int) or self.steps < 0:
+            raise ValueError(f"eval.test_time_fit.steps={self.steps!r}: expected a number of steps >= 0 (0: off)")
+        if not self.lr > 0:
+            raise ValueError(f"eval.test_time_fit.lr={self.lr!r}: expected a positive learning rate")
+
+
+def own_frames_error(dynamics, positions, grouping, rigidness, params, planes, kinematic) -> torch.Tensor:
+    """[B] L1 of the prior's rollout from the first H frames of ``positions`` [B, T, N, 3] against
+    its other T - H frames, in units of the displacement std, over movable particles. grouping
+    [B, N, M], rigidness [B, M] (what the prior takes), params [B, P] physical, planes [B, T, K, 4],
+    kinematic [N] (their positions in ``positions`` drive them)."""
+    h = dynamics.hparams.history
+    n_roll = positions.shape[1] - h
+    future = rollout(dynamics, positions, grouping, rigidness, params, planes, kinematic, n_roll)
+    return ((future - positions[:, h:]) / dynamics.disp_std).abs()[:, :, ~kinematic].mean((1, 2, 3))
+
+
+def fit_to_own_frames(dynamics, positions, grouping, rigidness, params_normalised, planes, kinematic, fit: TestTimeFit,
+                      to_physical, chunk: int = 16) -> dict:
+    """Fit P (and Q) of every video to its own frames, ``chunk`` videos at a time.
+
+    Args: positions [B, T, N, 3] the refined observed frames (T > the prior's history); grouping
+    [B, N, M]; rigidness [B, M] the amortised Q (a probability); params_normalised [B, P] the
+    amortised P in [-1, 1]; planes [B, T, K, 4]; kinematic [N]; ``to_physical`` maps normalised P
+    to physical units (the inference module's).
+    Returns params_normalised [B, P], rigidness [B, M] after the fit, and the own-frames error [B]
+    before and after it (``error_before``, ``error_after``).
+    """
+    if positions.shape[1] <= dynamics.hparams.history:
+        raise ValueError(f"test-time fit: {positions.shape[1]} observed frames leave nothing to fit after the prior's history of "
+                         f"{dynamics.hparams.history}; observe more frames (eval.observed)")
+    parts = []
+    for i in range(0, positions.shape[0], chunk):
+        s = slice(i, i + chunk)
+        parts.append(_fit_chunk(dynamics, positions[s].detach(), grouping[s].detach(), rigidness[s].detach(), params_normalised[s].detach(),
+                                planes[s], kinematic, fit, to_physical))
+    return {k: torch.cat([p[k] for p in parts]) for k in parts[0]}
+
+
+def _fit_chunk(dynamics, positions, grouping, rigidness, params_normalised, planes, kinematic, fit: TestTimeFit, to_physical) -> dict:
+    eps = 1e-4
+    u = torch.atanh(params_normalised.clamp(-1 + eps, 1 - eps)).clone().requires_grad_(True)
+    v = torch.logit(rigidness.clamp(eps, 1 - eps)).clone().requires_grad_(fit.rigidness)
+    weights = [u, v] if fit.rigidness else [u]
+    optimiser = torch.optim.Adam(weights, lr=fit.lr)
+    error = lambda: own_frames_error(dynamics, positions, grouping, torch.sigmoid(v), to_physical(torch.tanh(u)), planes, kinematic)  # noqa: E731
+    with torch.enable_grad():
+        before = error().detach()
+        for _ in range(fit.steps):
+            optimiser.zero_grad()
+            error().sum().backward()  # a sum: each video's P and Q get their own video's gradient
+            optimiser.step()
+        with torch.no_grad():
+            after = error()
+    return {"params_normalised": torch.tanh(u).detach(), "rigidness": torch.sigmoid(v).detach() if fit.rigidness else rigidness,
+            "error_before": before, "error_after": after}
