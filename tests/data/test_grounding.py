@@ -49,8 +49,20 @@ def test_export_covers_the_frames_the_inference_windows_read():
 
     cfg = OmegaConf.create({"env": {"start_frame": 2}, "model": {"inference": {"observed": 10, "window_span": 20}}})
     assert proposal_frames(cfg) == 32  # exactly what the windows above need
+    cfg.model.inference.net = {"horizon": 5, "rollout_target": "proposals"}
+    assert proposal_frames(cfg) == 37  # training without trajectories rolls against the 5 frames after them too
     cfg.model.inference.window_span = None
     assert proposal_frames(cfg) is None  # windows anywhere: whole videos
+
+
+def test_windows_for_training_without_trajectories_carry_the_future_frames_proposals():
+    scene, rollouts, proposals = _data(proposal_frames=2 + 20 + 10 + 5)
+    ds = GroundingWindows(rollouts, proposals, scene, observed=10, horizon=5, start_frame=2, span=20, target_proposals=True)
+    item = ds[len(ds) - 1]  # frames 22..31 observed, 32..36 rolled
+    assert torch.equal(item["target_proposals"], proposals.positions[1, 22:37]) and torch.equal(item["proposals"], proposals.positions[1, 22:32])
+    assert "target_proposals" not in GroundingWindows(rollouts, proposals, scene, observed=10, horizon=5, start_frame=2, span=20)[0]
+    with pytest.raises(DatasetError, match="cover the first 37 frames.*observed \\+ 5 future \\(model.inference.net.rollout_target=proposals\\) need 38"):
+        GroundingWindows(rollouts, proposals, scene, observed=10, horizon=5, start_frame=2, span=21, target_proposals=True)
 
 
 def test_truth_proposals_without_noise_are_the_recorded_particles_and_their_instances():

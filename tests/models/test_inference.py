@@ -436,3 +436,30 @@ def test_blend_then_bernoulli_switches_at_its_step_and_the_checkpoint_keeps_it(t
     for bad in ({"bernoulli_from_step": 3, "rigidness_estimator": "bernoulli"}, {"bernoulli_from_step": 0}):
         with pytest.raises(ValueError, match=r"bernoulli_from_step=\d with rigidness_estimator='\w+', expected a step >= 1 with 'blend'"):
             _modules(**bad)
+
+
+def test_training_on_proposals_reads_no_trajectory_and_rolls_against_the_proposals():
+    """rollout_target=proposals: with every non-actuated true position NaN, the loss is finite and
+    its gradient reaches dX, Q and P; it is the rollout error against the proposals' frames."""
+    torch.manual_seed(0)
+    _, inf = _modules(rollout_target="proposals", refine_weight=0.0)
+    batch = _batch()
+    batch["kinematic"][:, 0] = True  # an actuated particle: its true positions are the actions'
+    batch["target_proposals"] = torch.cat([batch["proposals"], torch.rand(2, 2, 24, 3)], 1)
+    batch["positions"][:, :, 1:] = float("nan")
+    losses = inf._losses(batch)
+    assert torch.isfinite(losses["loss"])
+    losses["loss"].backward()
+    assert all(float(head.lins[-1].weight.grad.abs().sum()) > 0 for head in (inf.refine_head, inf.rigid_head, inf.param_head))
+    # the same rollout loss as the trajectory-trained module's when the "truth" is the proposals
+    torch.manual_seed(0)
+    _, twin = _modules(refine_weight=0.0)
+    twin.load_state_dict(inf.state_dict())
+    twin_batch = dict(batch, positions=torch.where(batch["kinematic"][0][None, None, :, None], batch["positions"], batch["target_proposals"]))
+    assert float(twin._losses(twin_batch)["rollout"]) == pytest.approx(float(losses["rollout"]), rel=1e-6)
+
+
+@pytest.mark.parametrize("setting", [{"refine_weight": 1.0}, {"param_weight": 1.0}, {"trajectory_start": "both", "refine_weight": 0.0}])
+def test_training_on_proposals_refuses_any_term_that_reads_the_trajectories(setting):
+    with pytest.raises(ValueError, match="rollout_target='proposals' trains without the simulator's trajectories"):
+        _modules(rollout_target="proposals", **{"refine_weight": 0.0, **setting})

@@ -42,10 +42,14 @@ class GroundingWindows(Dataset):
     [T + k, K, 4], params [P], kinematic [N], rigid [M] (the true rigidness, only logged). Windows start at ``start_frame`` and every
     ``stride``-th frame after it, up to ``start_frame + span`` when ``span`` is given. The proposals
     may cover only the first frames of each video, as far as the last window's observed frames.
-    ``window_pool`` reads each window's proposals from the visual prior's windows (``pool_windows``)."""
+    ``window_pool`` reads each window's proposals from the visual prior's windows (``pool_windows``).
+    ``target_proposals``: items also hold the proposals of the observed and the ``horizon`` future
+    frames [T + k, N, 3] (``target_proposals``), which the inference module rolls against when it
+    trains without trajectories; the proposals must then cover those future frames too."""
 
     def __init__(self, rollouts: Rollouts, proposals: Proposals, scene: Scene, observed: int, horizon: int,
-                 start_frame: int = 0, stride: int = 1, span: int | None = None, window_pool: str = "last") -> None:
+                 start_frame: int = 0, stride: int = 1, span: int | None = None, window_pool: str = "last",
+                 target_proposals: bool = False) -> None:
         self.r, self.p, self.observed, self.horizon = rollouts, proposals, observed, horizon
         self.window_pool = check_window_pool(window_pool, "model.inference.window_pool")
         n_rollouts, n_frames = rollouts.positions.shape[:2]
@@ -54,10 +58,13 @@ class GroundingWindows(Dataset):
             raise ValueError(f"rollouts of {n_frames} frames are too short for {start_frame} skipped + {observed} observed + {horizon} future frames")
         if span is not None:
             last = min(last, start_frame + span)
-        if proposals.positions.shape[1] < last + observed:
+        needed = last + observed + (horizon if target_proposals else 0)
+        if proposals.positions.shape[1] < needed:
+            future = f" + {horizon} future (model.inference.net.rollout_target=proposals)" if target_proposals else ""
             raise DatasetError(
-                f"proposals cover the first {proposals.positions.shape[1]} frames, windows up to frame {last} + {observed} observed need "
-                f"{last + observed} (exported for a smaller model.inference.window_span?); re-export with task=export_proposals")
+                f"proposals cover the first {proposals.positions.shape[1]} frames, windows up to frame {last} + {observed} observed{future} need "
+                f"{needed} (exported for a smaller model.inference.window_span, or without rollout_target=proposals?); re-export with task=export_proposals")
+        self.target_proposals = target_proposals
         self.index = [(r, s) for r in range(n_rollouts) for s in range(start_frame, last + 1, stride)]
         self.planes = scene.planes_at(rollouts.actions)
         self.kinematic = torch.as_tensor(scene.kinematic)
@@ -75,17 +82,18 @@ class GroundingWindows(Dataset):
             "positions": self.r.positions[r, full], "planes": self.planes[r, full],
             "params": self.r.params[r], "kinematic": self.kinematic, "rigid": self.r.rigid,
             "grouping": self.grouping,
+            **({"target_proposals": pool_windows(self.p.positions, self.p.slots, self.window_pool, (r, full))} if self.target_proposals else {}),
         }
 
 
 class GroundingDataModule(L.LightningDataModule):
     def __init__(self, root: str, scene: Scene, observed: int = 10, horizon: int = 5, batch_size: int = 2,
                  start_frame: int = 0, stride: int = 1, span: int | None = None, num_workers: int = 0,
-                 val_span: int | None = None, window_pool: str = "last") -> None:
+                 val_span: int | None = None, window_pool: str = "last", target_proposals: bool = False) -> None:
         """Training windows start every ``stride`` frames within ``span`` frames of ``start_frame``;
         validation windows (on the test split) every ``observed`` frames within ``val_span`` (None:
-        ``span``; 0: only the evaluation's window, one per test video). ``window_pool``: as
-        GroundingWindows."""
+        ``span``; 0: only the evaluation's window, one per test video). ``window_pool`` and
+        ``target_proposals``: as GroundingWindows."""
         super().__init__()
         if val_span is not None and val_span < 0:
             raise ValueError(f"model.inference.val_window_span={val_span}: expected a frame count >= 0, or null for window_span")
@@ -94,6 +102,7 @@ class GroundingDataModule(L.LightningDataModule):
         self.observed, self.horizon, self.batch_size = observed, horizon, batch_size
         self.start_frame, self.stride, self.num_workers = start_frame, stride, num_workers
         self.window_pool = check_window_pool(window_pool, "model.inference.window_pool")
+        self.target_proposals = target_proposals
         self.train: Rollouts | None = None
 
     def setup(self, stage: str | None = None) -> None:
@@ -106,10 +115,11 @@ class GroundingDataModule(L.LightningDataModule):
             self.stats = NormStats.from_rollouts(self.train, torch.as_tensor(self.scene.kinematic))
 
     def train_dataloader(self) -> DataLoader:
-        ds = GroundingWindows(self.train, self.train_proposals, self.scene, self.observed, self.horizon, self.start_frame, self.stride, self.span, self.window_pool)
+        ds = GroundingWindows(self.train, self.train_proposals, self.scene, self.observed, self.horizon, self.start_frame, self.stride, self.span, self.window_pool,
+                              self.target_proposals)
         return DataLoader(ds, batch_size=self.batch_size, shuffle=True, num_workers=self.num_workers, drop_last=len(ds) > self.batch_size)
 
     def val_dataloader(self) -> DataLoader:
         ds = GroundingWindows(self.test, self.test_proposals, self.scene, self.observed, self.horizon, self.start_frame, self.observed, self.val_span,
-                             self.window_pool)
+                             self.window_pool, self.target_proposals)
         return DataLoader(ds, batch_size=self.batch_size, shuffle=False, num_workers=self.num_workers)

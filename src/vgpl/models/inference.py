@@ -27,6 +27,12 @@ and Q learns from the expected trajectory L1 over the label, Q L1(rigid) + (1 - 
 per instance (``flipped_label_errors``, ``expected_rigidness_error``). ``bernoulli_from_step`` k
 trains with the blend for k steps, then with ``bernoulli``, in one run.
 
+``rollout_target``: what the rollouts are compared with. ``truth`` (the paper): the simulator's
+trajectories. ``proposals``: the visual prior's particles of the same frames, slot by slot (the
+visual prior gives every particle its own slot in every frame), so the module trains on unlabelled
+videos; nothing then reads the trajectories but the logged metrics (it needs refine_weight 0 and
+param_weight 0; the actuated particles are placed by the actions, as the Grounder places them).
+
 Nothing supervises Q or P directly unless ``param_weight`` > 0: ``rigid_correct/<type>`` and
 ``param_mae_pct`` are logged against the truth, never trained on.
 """
@@ -132,6 +138,7 @@ class InferenceModule(AnnealedLearningRate, NormalisationBuffers, L.LightningMod
         proposal_noise: float = 0.0,
         bernoulli_from_step: int | None = None,
         training_scheme: str = "joint",
+        rollout_target: str = "truth",
     ) -> None:
         super().__init__()
         if param_rotation and not separate_param_net:
@@ -148,6 +155,13 @@ class InferenceModule(AnnealedLearningRate, NormalisationBuffers, L.LightningMod
             raise ValueError("InferenceModule: training_scheme='paper' trains the paper's two networks, each with its own rollout; it needs "
                              f"separate_param_net=true, trajectory_start='refined' and rigidness_estimator='blend' (got {separate_param_net}, "
                              f"{trajectory_start!r}, {rigidness_estimator!r})")
+        if rollout_target not in ("truth", "proposals"):
+            raise ValueError(f"InferenceModule: rollout_target={rollout_target!r}, expected 'truth' (the simulator's trajectories, the paper) "
+                             "or 'proposals' (the visual prior's particles of the same frames: training without trajectories)")
+        if rollout_target == "proposals" and (training_scheme != "joint" or trajectory_start != "refined" or refine_weight != 0 or param_weight != 0):
+            raise ValueError("InferenceModule: rollout_target='proposals' trains without the simulator's trajectories, so nothing may read them: "
+                             "it needs training_scheme='joint', trajectory_start='refined', refine_weight=0 and param_weight=0 (got "
+                             f"{training_scheme!r}, {trajectory_start!r}, {refine_weight}, {param_weight})")
         if rigidness_estimator not in ("blend", "bernoulli"):
             raise ValueError(f"InferenceModule: rigidness_estimator={rigidness_estimator!r}, expected 'blend' (the paper: Q is the prior's "
                              "blend weight) or 'bernoulli' (Q is the probability of the label the prior sees)")
@@ -279,6 +293,10 @@ class InferenceModule(AnnealedLearningRate, NormalisationBuffers, L.LightningMod
         dyn = self.dynamics
         kinematic = batch["kinematic"][0]
         proposals, truth, planes = batch["proposals"], batch["positions"], batch["planes"]
+        if self.hparams.rollout_target == "proposals":
+            # the visual prior's particles of the window and its future frames stand for the trajectory; the actuated
+            # particles are where the actions put them (Scene.kinematic_positions gives the recorded ones exactly)
+            truth = torch.where(kinematic[None, None, :, None], truth, batch["target_proposals"])
         if noise and self.hparams.proposal_noise > 0:
             proposals = add_proposal_jitter(proposals, self.hparams.proposal_noise)
         b, t = proposals.shape[:2]
@@ -338,10 +356,11 @@ class InferenceModule(AnnealedLearningRate, NormalisationBuffers, L.LightningMod
             p_tail = p.detach() if self.hparams.tail_detach_params else p
             future = rollout(dyn, torch.cat([x[:, t - h :], target], 1), g, q, p_tail, planes[:, t - h : t + kt], kinematic, kt)
             losses["tail"] = ((future - target) / scale).abs()[:, :, movable].mean()
-        losses["refine"] = ((out["positions"] - truth[:, :t]) / scale).abs()[:, :, movable].mean()
+        losses["refine"] = ((out["positions"] - batch["positions"][:, :t]) / scale).abs()[:, :, movable].mean()  # against the truth: logged; trained on with refine_weight
         p_error = (out["params_normalised"] - self.normalise_params(batch["params"])).abs()
         losses["loss"] = (losses.get("one_step", 0.0) + losses.get("rollout", 0.0) + losses.get("rollout_from_truth", 0.0)
-                          + losses.get("tail", 0.0) + losses.get("rigidness", 0.0) + self.hparams.refine_weight * losses["refine"])
+                          + losses.get("tail", 0.0) + losses.get("rigidness", 0.0)
+                          + (self.hparams.refine_weight * losses["refine"] if self.hparams.refine_weight else 0.0))
         if self.hparams.param_weight > 0:  # not the paper: a supervised shortcut for CPU-minute presets
             losses["loss"] = losses["loss"] + self.hparams.param_weight * p_error.mean()
         losses["param_mae_pct"] = (p_error * 50.0).mean()

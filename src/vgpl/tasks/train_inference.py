@@ -39,7 +39,7 @@ def grounding_datamodule(cfg: DictConfig, scene) -> GroundingDataModule:
     spec = cfg.model.inference
     return GroundingDataModule(cfg.data.root, scene, spec.observed, spec.net.horizon, spec.batch_size, cfg.env.get("start_frame", 0),
                                spec.window_stride, spec.get("window_span"), val_span=spec.get("val_window_span"),
-                               window_pool=spec.get("window_pool", "last"))
+                               window_pool=spec.get("window_pool", "last"), target_proposals=spec.net.get("rollout_target", "truth") == "proposals")
 
 
 def train_inference(cfg: DictConfig) -> dict:

@@ -83,10 +83,14 @@ def export_truth_split(root: str, env: str, split: str, noise_std: float, seed: 
 
 def proposal_frames(cfg: DictConfig) -> int | None:
     """Frames of each video the inference module reads: its windows start at most
-    ``window_span`` frames after ``start_frame`` and observe ``observed`` frames (None: all frames).
-    The evaluation proposes its own test frames, so nothing later is needed."""
-    span = cfg.model.inference.get("window_span")
-    return None if span is None else int(cfg.env.get("start_frame", 0) + span + cfg.model.inference.observed)
+    ``window_span`` frames after ``start_frame`` and observe ``observed`` frames, and with
+    ``rollout_target=proposals`` roll ``horizon`` frames past them (None: all frames). The
+    evaluation proposes its own test frames, so nothing later is needed."""
+    spec = cfg.model.inference
+    span = spec.get("window_span")
+    net = spec.get("net") or {}
+    future = int(net.horizon) if net.get("rollout_target", "truth") == "proposals" else 0
+    return None if span is None else int(cfg.env.get("start_frame", 0) + span + spec.observed + future)
 
 
 def export_proposals(cfg: DictConfig) -> dict:
