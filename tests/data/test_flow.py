@@ -66,3 +66,37 @@ def test_evaluation_windows_of_estimated_flow_carry_the_simulators_flow_to_measu
     torch.testing.assert_close(item["simulator_flow"], particle_flow(scene.camera, videos.positions[0, :5]))
     assert "simulator_flow" not in FlowWindows(videos, scene.camera, 4, flow="farneback")[0]
     assert "simulator_flow" not in FlowWindows(videos, scene.camera, 4, flow="simulator", reference=True)[0]
+
+
+def test_estimated_flow_is_computed_once_per_split_and_every_window_reads_the_estimators_numbers(tmp_path, monkeypatch):
+    """The flow cache next to the shards: windows read Farneback's flow of their frames (to float16's
+    precision), a second request with fewer videos or frame pairs reads the same file without
+    estimating again, and a request for more frame pairs rebuilds it."""
+    from hydra import compose, initialize_config_dir
+
+    import vgpl.data.flow_cache as cache
+    from tests.conftest import REPO
+    from vgpl.data.flow_cache import CachedFlow, ensure_flow_cache
+    from vgpl.data.flow_windows import FlowWindows
+    from vgpl.data.trajectories import load_split
+    from vgpl.tasks.generate import generate
+
+    with initialize_config_dir(str(REPO / "conf"), version_base="1.3"):
+        generate(compose("config", overrides=["task=generate", "env=rigid_fall", "env.scene.n_steps=14", f"data.root={tmp_path}",
+                                              "data.n_rollouts=3", "data.train_fraction=1.0", "data.progress=false"]))
+    videos = load_split(tmp_path, "rigid_fall", "train", images=True)
+    scene = make_scene("rigid_fall")
+    windows = FlowWindows(videos, scene.camera, 4, stride=3, flow="farneback")
+    assert windows.pairs_needed == 9 + 4  # the last window starts at frame 9
+    path = ensure_flow_cache(tmp_path, "rigid_fall", "train", videos, 8)
+    assert path == tmp_path / "rigid_fall/flow/train.h5"
+    calls = []
+    monkeypatch.setattr(cache, "farneback_flow", lambda frames: calls.append(1) or farneback_flow(frames))
+    first_two = load_split(tmp_path, "rigid_fall", "train", images=True, max_rollouts=2)
+    assert ensure_flow_cache(tmp_path, "rigid_fall", "train", first_two, 4) == path and not calls  # read, not estimated
+    ensure_flow_cache(tmp_path, "rigid_fall", "train", videos, windows.pairs_needed)
+    assert len(calls) == 3  # more pairs than it held: estimated again, once per video
+    windows.cache = CachedFlow(path)
+    for k in (0, len(windows) - 1):
+        r, s = windows.index[k]
+        torch.testing.assert_close(windows[k]["flow"], farneback_flow(videos.images[r, s : s + 5]), atol=4e-3, rtol=2e-3)

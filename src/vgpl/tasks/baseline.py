@@ -16,6 +16,7 @@ from torch.utils.data import DataLoader
 
 from vgpl.checkpoint import load_stage, scene_of
 from vgpl.data.flow import flow_error
+from vgpl.data.flow_cache import CachedFlow, ensure_flow_cache
 from vgpl.data.flow_windows import FlowWindows
 from vgpl.data.trajectories import load_split
 from vgpl.eval.linear_probe import Ridge
@@ -75,9 +76,15 @@ def flow_quality(model: DensePhysNet, windows: FlowWindows, batch_size: int = 8)
     return quality
 
 
-def _windows(cfg: DictConfig, scene, rollouts, stride: int | None, reference: bool = False) -> FlowWindows:
+def _windows(cfg: DictConfig, scene, rollouts, stride: int | None, reference: bool = False, split: str | None = None) -> FlowWindows:
+    """The baseline's windows of ``rollouts``; with estimated flow and a ``split``, read from that
+    split's flow cache (computed once, next to the shards)."""
     spec = cfg.model.densephysnet
-    return FlowWindows(rollouts, scene.camera, spec.observed, cfg.env.get("start_frame", 0), stride, spec.flow, reference)
+    windows = FlowWindows(rollouts, scene.camera, spec.observed, cfg.env.get("start_frame", 0), stride, spec.flow, reference)
+    if spec.flow != "simulator" and split is not None:
+        path = ensure_flow_cache(cfg.data.root, scene.name, split, rollouts, windows.pairs_needed, bool(cfg.data.get("progress", False)))
+        windows.cache = CachedFlow(path)
+    return windows
 
 
 def _videos(cfg: DictConfig, scene, split: str, max_rollouts, stream: bool = False):
@@ -89,14 +96,14 @@ def train_baseline(cfg: DictConfig) -> dict:
     scene = scene_of(cfg)
     spec = cfg.model.densephysnet
     train_videos = _videos(cfg, scene, "train", spec.get("max_rollouts"), bool(spec.get("stream_video", False)))
-    train = _windows(cfg, scene, train_videos, spec.window_stride)
-    test = _windows(cfg, scene, _videos(cfg, scene, "test", cfg.eval.get("max_rollouts")), None)
+    train = _windows(cfg, scene, train_videos, spec.window_stride, split="train")
+    test = _windows(cfg, scene, _videos(cfg, scene, "test", cfg.eval.get("max_rollouts")), None, split="test")
     model = hydra.utils.instantiate(spec.net, action_dim=scene.action_dim)
     trainer, last = fit(cfg, "densephysnet", spec, model, FlowDataModule(train, test, spec.batch_size))
     if not trainer.is_global_zero:  # under DDP rank 0 alone evaluates and writes
         return {"env": scene.name, "checkpoint": str(last)}
     # the linear decoder: one representation per training rollout, at the evaluation protocol's window
-    probe = _windows(cfg, scene, train_videos, None)
+    probe = _windows(cfg, scene, train_videos, None, split="train")
     x, y = features(model, probe)
     ridge = Ridge.fit(x, y, spec.ridge_alpha)
     torch.save(ridge.state_dict(), last.parent / "ridge.pt")
@@ -118,13 +125,13 @@ def evaluate_baseline(cfg: DictConfig) -> dict:
         raise FileNotFoundError(f"{ridge_file}: missing; task=train_baseline writes the linear decoder beside the checkpoint")
     ridge = Ridge(**torch.load(ridge_file))
     videos = _videos(cfg, scene, "test", cfg.eval.get("max_rollouts"))
-    test = _windows(cfg, scene, videos, None)
+    test = _windows(cfg, scene, videos, None, split="test")
     x, y = features(model, test)
     pred = ridge.predict(x).clamp(torch.as_tensor(scene.param_low, dtype=torch.float32), torch.as_tensor(scene.param_high, dtype=torch.float32))
     err = param_error_pct(pred, y, test.r.param_low, test.r.param_high).mean(1)
     record = {"env": scene.name, "method": "densephysnet", "ablation": "full", "n_test": len(test), "checkpoints": {"densephysnet": str(ckpt)},
               "param_mae_pct": float(err.mean()), "param_mae_pct_std": float(err.std()), "flow": test.flow,
-              **flow_quality(model, _windows(cfg, scene, videos, None, reference=True))}
+              **flow_quality(model, _windows(cfg, scene, videos, None, reference=True, split="test"))}
     out = Path(cfg.paths.output_dir)
     out.mkdir(parents=True, exist_ok=True)
     (out / "metrics.json").write_text(json.dumps(record, indent=1))
