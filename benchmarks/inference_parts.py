@@ -3,8 +3,11 @@ from nothing: windows of engine-simulated rollouts (proposals = true positions +
 as dense as a trained visual prior's), an untrained prior and module of the preset's shapes
 (the step's cost does not depend on the weights). No dataset or checkpoint is needed.
 
-    python benchmarks/inference_parts.py --env rigid_fall            # one JSON line
+    python benchmarks/inference_parts.py --env rigid_fall            # JSON lines: exact width, then aligned
     python benchmarks/inference_parts.py --env rigid_fall --width 152
+
+Each run times the step twice, with the per-edge activations at the exact width (``alignment``
+1: how vgpl computed them before) and aligned to 8 columns (the default; vgpl.nn.propagation).
 
 Parts, each forward + backward, median of --repeat after two warm-ups: the whole step (loss,
 backward, Adam); one spatio-temporal encoder's radius graph, node MLP, per-edge MLP (edge encoder
@@ -28,6 +31,7 @@ from hydra import compose, initialize_config_dir
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from machine import describe  # noqa: E402
 
+import vgpl.nn.propagation as propagation  # noqa: E402
 from vgpl.data.trajectories import NormStats, Rollouts, ground_truth_grouping  # noqa: E402
 from vgpl.eval.rollout import rollout  # noqa: E402
 from vgpl.graph import edge_features, radius_graph  # noqa: E402
@@ -97,7 +101,7 @@ def parts(model, window, repeat: int) -> dict:
     edges = radius_graph(where, enc.radius, frames, max_neighbors=enc.max_neighbors)
     attr = edge_features(where, edges, grouping[:, None].expand(b, t, n, -1).reshape(b * t * n, -1))
     code = enc.node_encoder(flat).detach().requires_grad_(True)
-    term = enc.edge_term(enc.edge_encoder(flat, attr, edges)).detach().requires_grad_(True)
+    term = enc.edge_encoder(flat, attr, edges, enc.edge_term).detach().requires_grad_(True)
 
     def propagate():
         effect = torch.zeros_like(code)
@@ -123,7 +127,7 @@ def parts(model, window, repeat: int) -> dict:
         "per_encoder_ms": {
             "radius_graph": median_ms(lambda: radius_graph(where, enc.radius, frames, max_neighbors=enc.max_neighbors), repeat),
             "node_mlp": median_ms(lambda: enc.node_encoder(flat).sum().backward(), repeat),
-            "edge_mlp": median_ms(lambda: enc.edge_term(enc.edge_encoder(flat, attr, edges)).sum().backward(), repeat),
+            "edge_mlp": median_ms(lambda: enc.edge_encoder(flat, attr, edges, enc.edge_term).sum().backward(), repeat),
             "propagation": median_ms(propagate, repeat),
             "gru": median_ms(lambda: enc.gru(sequence)[0].sum().backward(), repeat),
         },
@@ -144,9 +148,11 @@ def main() -> None:
     args = parser.parse_args()
     torch.set_num_threads(args.threads)
     _, model, window = setup(args.env, args.width, args.batch, args.preset)
-    row = {"benchmark": "inference_step_parts", "env": args.env, "preset": args.preset, "width": args.width, "batch": args.batch,
-           "precision": "32-true", **parts(model, window, args.repeat), "machine": describe()}
-    print(json.dumps(row), flush=True)
+    for alignment in (1, 8):
+        propagation.ALIGNMENT = alignment
+        row = {"benchmark": "inference_step_parts", "env": args.env, "preset": args.preset, "width": args.width, "alignment": alignment,
+               "batch": args.batch, "precision": "32-true", **parts(model, window, args.repeat), "machine": describe()}
+        print(json.dumps(row), flush=True)
 
 
 if __name__ == "__main__":

@@ -175,7 +175,7 @@ class DynamicsPrior(NormalisationBuffers, L.LightningModule):
             rigidness = torch.zeros_like(rigidness)
         nodes, edge_index, edge_attr = self.build_inputs(history, grouping, rigidness, params, planes, kinematic, kinematic_next)
         code = self.node_encoder(nodes)
-        term = self.edge_term(self.edge_encoder(nodes, edge_attr, edge_index))
+        term = self.edge_encoder(nodes, edge_attr, edge_index, self.edge_term)
         effect = torch.zeros_like(code)
         for _ in range(self.hparams.propagation_steps):
             effect = self.propagator(effect, code, term, edge_index)

@@ -97,7 +97,7 @@ class SpatioTemporalEncoder(nn.Module):
         scale = torch.cat([pos_scale, pos_scale.norm()[None], torch.ones(1, device=nodes.device)])
         edge_attr = edge_features(flat_pos, edge_index, group) / scale
         code = self.node_encoder(flat_nodes)
-        term = self.edge_term(self.edge_encoder(flat_nodes, edge_attr, edge_index))
+        term = self.edge_encoder(flat_nodes, edge_attr, edge_index, self.edge_term)
         effect = torch.zeros_like(code)
         for _ in range(self.steps):
             effect = self.propagator(effect, code, term, edge_index)
