@@ -102,6 +102,7 @@ def test_workers_split_the_shards(tmp_path):
         generate(config(tmp_path, "data.num_workers=2", "data.worker=2"))
 
 
+@pytest.mark.slow  # starts several processes
 def test_worker_processes_make_the_same_bytes(tmp_path):
     one = generate(config(tmp_path / "one"))
     two = generate(config(tmp_path / "two", "data.processes=2"))
@@ -151,6 +152,7 @@ def test_a_shard_is_placed_only_while_its_configuration_holds_the_folder(tmp_pat
     assert validate(train / "shard_00000.h5")["attrs"]["seed"] == 0
 
 
+@pytest.mark.slow  # starts several processes
 def test_two_runs_of_other_seeds_started_together_never_mix(tmp_path):
     """Two generate processes, seeds 0 and 1, into one folder at the same time: one is refused
     with the claim's error before it writes, and every shard carries the other run's seed."""
@@ -184,6 +186,7 @@ def run_py(*args, cwd):
     return subprocess.run([sys.executable, str(REPO / "run.py"), *args], cwd=cwd, capture_output=True, text=True, timeout=300)
 
 
+@pytest.mark.slow  # starts several processes
 def test_hydra_multirun_splits_generation_across_jobs(tmp_path):
     proc = run_py(
         "-m", "task=generate", "env=mass_rope", "env.scene.n_steps=5", f"data.root={tmp_path}/data",
@@ -221,6 +224,7 @@ def test_bad_option_gives_one_clear_error(tmp_path):
     assert proc.returncode != 0 and "water" in proc.stderr and "rigid_fall" in proc.stderr
 
 
+@pytest.mark.slow  # starts several processes
 def test_local_launcher_runs_a_two_job_sweep_in_parallel_processes(tmp_path):
     proc = run_py("-m", "hydra/launcher=local", "task=generate", "env=rigid_fall,mass_rope", "env.scene.n_steps=4", "data.n_rollouts=2", "data.train_fraction=0.5",
                   "data.shard_size=2", "data.render=false", "data.progress=false", "threads=1", f"data.root={tmp_path}/data",
