@@ -20,7 +20,6 @@ from __future__ import annotations
 import argparse
 import json
 import sys
-import time
 from pathlib import Path
 
 import hydra
@@ -29,6 +28,7 @@ import torch
 from hydra import compose, initialize_config_dir
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
+from dynamics import timed  # noqa: E402
 from machine import describe  # noqa: E402
 
 import vgpl.nn.propagation as propagation  # noqa: E402
@@ -41,14 +41,7 @@ CONF = Path(__file__).resolve().parents[1] / "conf"
 
 
 def median_ms(fn, repeat: int) -> float:
-    fn()
-    fn()
-    times = []
-    for _ in range(repeat):
-        start = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - start)
-    return round(float(np.median(times)) * 1e3, 1)
+    return round(timed(fn, repeat), 1)
 
 
 def setup(env: str, width: int, batch: int, preset: str):
