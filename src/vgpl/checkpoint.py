@@ -53,11 +53,22 @@ def check_resume(path: str | Path, model, env: str | None) -> None:
     except (RuntimeError, EOFError, KeyError, TypeError, pickle.UnpicklingError) as error:
         raise unreadable(path, type(model), error) from error
     own = model.state_dict()
-    differ = [k for k in own if k not in state or state[k].shape != own[k].shape] + [k for k in state if k not in own]
+    differ = differing_keys(own, state)
     if differ:
         raise CheckpointError(f"{path}: ckpt_path: a {type(model).__name__} checkpoint whose weights do not fit this run's {type(model).__name__} "
-                              f"({', '.join(differ[:3])}{', ...' if len(differ) > 3 else ''}: another net config); resume with the config it was "
+                              f"({listed(differ)}: another net config); resume with the config it was "
                               "trained with, or start from its weights with init_from")
+
+
+def differing_keys(own: dict, state: dict) -> list[str]:
+    """Keys of the state dict ``own`` missing from ``state`` or of another shape there, then the
+    keys of ``state`` that ``own`` lacks."""
+    return [k for k in own if k not in state or state[k].shape != own[k].shape] + [k for k in state if k not in own]
+
+
+def listed(keys: list[str], most: int = 3) -> str:
+    """The first ``most`` keys, comma-separated, with ', ...' when there are more."""
+    return ", ".join(keys[:most]) + (", ..." if len(keys) > most else "")
 
 
 def saved_config(path: Path, cls, env: str | None, option: str | None = None) -> DictConfig:
@@ -107,9 +118,9 @@ def init_weights(model, path: str | Path, spec_key: str, env: str, n_particles: 
         if not any(under(key, name) for key in own):
             raise CheckpointError(f"{spec_key}.init_reset: {name!r} is no submodule of {type(model).__name__}, expected one of {sorted({k.split('.')[0] for k in own})}")
     state = {k: v for k, v in source.state_dict().items() if not fresh(k)} | {k: v for k, v in own.items() if fresh(k)}
-    differ = [k for k in own if k not in state or state[k].shape != own[k].shape] + [k for k in state if k not in own]
+    differ = differing_keys(own, state)
     if differ:
-        raise CheckpointError(f"{path}: {spec_key}.init_from has other layer shapes than {spec_key}.net ({', '.join(differ[:3])}{', ...' if len(differ) > 3 else ''}; "
+        raise CheckpointError(f"{path}: {spec_key}.init_from has other layer shapes than {spec_key}.net ({listed(differ)}; "
                               f"{spec_key}.init_reset: [{differ[0].split('.')[0]}] would start that submodule fresh)")
     model.load_state_dict(state)
     log.info("%s initialised from %s%s", type(model).__name__, path, f", {', '.join(reset)} fresh" if reset else "")
