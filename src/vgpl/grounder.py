@@ -25,7 +25,7 @@ from vgpl.checkpoint import load_stage, scene_of
 from vgpl.data.window_pool import pool_windows
 from vgpl.eval.grounding import observed_proposals
 from vgpl.eval.rollout import rollout
-from vgpl.eval.test_time_fit import TestTimeFit, fit_to_own_frames
+from vgpl.eval.test_time_fit import TestTimeFit, refit_inferred
 from vgpl.models.dynamics_prior import DynamicsPrior
 from vgpl.models.inference import InferenceModule
 from vgpl.models.visual_prior import VisualPrior
@@ -128,21 +128,16 @@ class Grounder:
         s, t, h = self.start_frame, self.observed, self.dynamics.hparams.history
         proposals, logits, slots = observed_proposals(self.visual, frames[None, : self.frames_needed], s, t)
         seen = pool_windows(proposals, slots, self.window_pool, np.s_[:, :t])
-        out = self.inference.infer(seen, logits[:, :t], torch.as_tensor(self.scene.kinematic))
+        kinematic = torch.as_tensor(self.scene.kinematic)
+        out = self.inference.infer(seen, logits[:, :t], kinematic)
         n_actions = s + t + n_future
         acts = (actions[None, :n_actions] if actions is not None else torch.zeros(1, n_actions, 0))
         refined = self.scene.kinematic_positions(out["positions"], acts[:, s : s + t])  # the actuator's particles where it drives them
         if test_time_fit is not None and test_time_fit.steps > 0:
-            fit_q = test_time_fit.rigidness and self.inference.estimator == "blend"
-            fitted = fit_to_own_frames(self.dynamics, refined, out["grouping"], out["rigidness_prob"], out["params_normalised"],
-                                       self.scene.planes_at(acts[:, s : s + t]), torch.as_tensor(self.scene.kinematic),
-                                       TestTimeFit(test_time_fit.steps, test_time_fit.lr, fit_q), self.inference.to_physical)
-            out["params"] = self.inference.to_physical(fitted["params_normalised"])
-            if fit_q:
-                out["rigidness_prob"], out["rigidness"] = fitted["rigidness"], self.inference.prior_rigidness(fitted["rigidness"])
+            refit_inferred(out, self.inference, self.dynamics, refined, self.scene.planes_at(acts[:, s : s + t]), kinematic, test_time_fit)
         driven = self.scene.kinematic_positions(torch.zeros(1, n_future, *refined.shape[2:]), acts[:, s + t :])
         future = rollout(self.dynamics, torch.cat([refined[:, -h:], driven], 1), out["grouping"], out["rigidness"], out["params"],
-                         self.scene.planes_at(acts[:, s + t - h :]), torch.as_tensor(self.scene.kinematic), n_future)
+                         self.scene.planes_at(acts[:, s + t - h :]), kinematic, n_future)
         names = list(self.scene.param_names)
         return Grounding(self.scene.name, s, seen[0], refined[0], out["grouping"][0], out["rigidness_prob"][0],
                          {name: float(v) for name, v in zip(names, out["params"][0])}, future[0], list(self.scene.instance_types))

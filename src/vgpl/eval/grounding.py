@@ -16,7 +16,7 @@ from vgpl.data.window_pool import check_window_pool, pool_windows
 from vgpl.eval.error_sources import RolloutInputs, error_sources
 from vgpl.eval.metrics import correct_rigidness_prob, mean_per_type, midpoint_error_pct, param_signed_error_pct, position_mse_x1e4
 from vgpl.eval.rollout import future_mse, rollout
-from vgpl.eval.test_time_fit import TestTimeFit, fit_to_own_frames
+from vgpl.eval.test_time_fit import TestTimeFit, refit_inferred
 
 
 @dataclass
@@ -119,16 +119,12 @@ def evaluate_grounding(dynamics, visual, inference, scene, test: Rollouts, ablat
     metrics = {}
     x = torch.where(kinematic[None, None, :, None], truth_seen, out["positions"])  # the actuators' particles are known
     if test_time_fit is not None and test_time_fit.steps > 0 and ablation.params:
-        fit_q = bool(test_time_fit.rigidness and ablation.rigidness and inference.estimator == "blend")
         started = time.perf_counter()
-        fitted = fit_to_own_frames(dynamics, x, out["grouping"], out["rigidness_prob"], out["params_normalised"], scene.planes_at(test.actions[:, seen]),
-                                   kinematic, TestTimeFit(test_time_fit.steps, test_time_fit.lr, fit_q), inference.to_physical, chunk)
+        fitted = refit_inferred(out, inference, dynamics, x, scene.planes_at(test.actions[:, seen]), kinematic, test_time_fit,
+                                bool(ablation.rigidness), chunk)
         metrics["test_time_fit_seconds_per_video"] = (time.perf_counter() - started) / len(x)
         metrics["own_frames_error_before_fit"] = float(fitted["error_before"].mean())
         metrics["own_frames_error_after_fit"] = float(fitted["error_after"].mean())
-        out["params_normalised"], out["params"] = fitted["params_normalised"], inference.to_physical(fitted["params_normalised"])
-        if fit_q:
-            out["rigidness_prob"], out["rigidness"] = fitted["rigidness"], inference.prior_rigidness(fitted["rigidness"])
     # Table 1: parameters
     signed = param_signed_error_pct(out["params"], test.params, test.param_low, test.param_high)
     err = signed.abs().mean(1)

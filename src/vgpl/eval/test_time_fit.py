@@ -70,6 +70,22 @@ def fit_to_own_frames(dynamics, positions, grouping, rigidness, params_normalise
     return {k: torch.cat([p[k] for p in parts]) for k in parts[0]}
 
 
+def refit_inferred(out: dict, inference, dynamics, positions, planes, kinematic, fit: TestTimeFit, rigidness: bool = True,
+                   chunk: int = 16) -> dict:
+    """Replace the inference module's P (and Q) in ``out`` (``InferenceModule.infer``'s dict) by
+    their test-time fit to ``positions`` [B, T, N, 3], the refined observed frames with the
+    actuated particles placed (``fit_to_own_frames``). Q is fitted when ``fit.rigidness`` and
+    ``rigidness`` (the ablation infers it) and the module's estimator is ``blend``. Returns
+    ``fit_to_own_frames``' result."""
+    fit_q = bool(fit.rigidness and rigidness and inference.estimator == "blend")
+    fitted = fit_to_own_frames(dynamics, positions, out["grouping"], out["rigidness_prob"], out["params_normalised"], planes, kinematic,
+                               TestTimeFit(fit.steps, fit.lr, fit_q), inference.to_physical, chunk)
+    out["params_normalised"], out["params"] = fitted["params_normalised"], inference.to_physical(fitted["params_normalised"])
+    if fit_q:
+        out["rigidness_prob"], out["rigidness"] = fitted["rigidness"], inference.prior_rigidness(fitted["rigidness"])
+    return fitted
+
+
 def _fit_chunk(dynamics, positions, grouping, rigidness, params_normalised, planes, kinematic, fit: TestTimeFit, to_physical) -> dict:
     eps = 1e-4
     u = torch.atanh(params_normalised.clamp(-1 + eps, 1 - eps)).clone().requires_grad_(True)
