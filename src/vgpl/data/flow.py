@@ -7,6 +7,8 @@ from __future__ import annotations
 import numpy as np
 import torch
 
+FARNEBACK = {"pyr_scale": 0.5, "levels": 3, "winsize": 9, "iterations": 3, "poly_n": 5, "poly_sigma": 1.1}  # farneback_flow's settings
+
 
 def particle_flow(camera, positions: torch.Tensor, splat: int = 1) -> torch.Tensor:
     """Flow images [T - 1, H, W, 2] (pixels per frame, u right, v down) from positions [T, N, 3].
@@ -46,7 +48,7 @@ def farneback_flow(frames: torch.Tensor) -> torch.Tensor:
     except ImportError as e:
         raise ImportError("model.densephysnet.flow=farneback needs OpenCV: pip install opencv-python-headless (or use flow=simulator)") from e
     gray = [cv2.cvtColor(f, cv2.COLOR_RGB2GRAY) for f in frames.numpy()]
-    out = [cv2.calcOpticalFlowFarneback(a, b, None, 0.5, 3, 9, 3, 5, 1.1, 0) for a, b in zip(gray[:-1], gray[1:])]
+    out = [cv2.calcOpticalFlowFarneback(a, b, None, **FARNEBACK, flags=0) for a, b in zip(gray[:-1], gray[1:])]
     return torch.as_tensor(np.stack(out))
 
 

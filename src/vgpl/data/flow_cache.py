@@ -19,12 +19,13 @@ import numpy as np
 import torch
 from tqdm.auto import tqdm
 
-from vgpl.data.flow import farneback_flow
+from vgpl.data.dataset_claim import written_by
+from vgpl.data.flow import FARNEBACK, farneback_flow
 from vgpl.data.trajectories import Rollouts
 
 log = logging.getLogger(__name__)
 
-METHOD = "farneback(pyr_scale=0.5, levels=3, winsize=9, iterations=3, poly_n=5, poly_sigma=1.1)"  # vgpl.data.flow.farneback_flow's
+METHOD = "farneback(" + ", ".join(f"{k}={v}" for k, v in FARNEBACK.items()) + ")"  # recorded in the cache: other settings rebuild it
 
 
 def flow_cache_path(root: str | Path, env: str, split: str) -> Path:
@@ -33,9 +34,7 @@ def flow_cache_path(root: str | Path, env: str, split: str) -> Path:
 
 def split_config_hash(root: str | Path, env: str, split: str) -> str:
     """The config_hash of the split's shards (they all share it)."""
-    first = sorted((Path(root) / env / split).glob("shard_*.h5"))[0]
-    with h5py.File(first, "r") as f:
-        return str(f.attrs["config_hash"])
+    return str(written_by(sorted((Path(root) / env / split).glob("shard_*.h5"))[0]))
 
 
 def cache_matches(path: Path, config_hash: str, rollout_ids: torch.Tensor, pairs: int) -> bool:
