@@ -14,11 +14,11 @@ class FlowWindows(Dataset):
     params [P]. Windows start at ``start_frame`` and every ``stride``-th frame after it
     (``stride=None``: only at ``start_frame``, the evaluation protocol). With ``reference`` and
     estimated flow, items also hold ``simulator_flow`` [T, H, W, 2], to measure the estimate by.
-    ``cache`` (estimated flow): the split's flow cache (vgpl.data.flow_cache), read instead of
-    estimating each window's flow again."""
+    ``cache`` (set with estimated flow, once ``pairs_needed`` is known): the split's flow cache
+    (vgpl.data.flow_cache), read instead of estimating each window's flow again."""
 
     def __init__(self, rollouts: Rollouts, camera, observed: int, start_frame: int = 0, stride: int | None = None, flow: str = "simulator",
-                 reference: bool = False, cache: CachedFlow | None = None) -> None:
+                 reference: bool = False) -> None:
         if flow not in ("simulator", "farneback"):
             raise ValueError(f"model.densephysnet.flow={flow!r}: expected simulator or farneback")
         self.flow, self.reference = flow, reference and flow != "simulator"
@@ -31,7 +31,7 @@ class FlowWindows(Dataset):
             raise ValueError(f"rollouts of {n_frames} frames are too short for {start_frame} skipped + {observed} + 1 frames")
         starts = [start_frame] if stride is None else range(start_frame, last + 1, stride)
         self.index = [(r, s) for r in range(n_rollouts) for s in starts]
-        self.cache = cache if flow != "simulator" else None
+        self.cache: CachedFlow | None = None
 
     @property
     def pairs_needed(self) -> int:
