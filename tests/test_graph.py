@@ -22,6 +22,16 @@ def test_own_radius_graph_matches_brute_force(sizes):
     assert torch.equal(own_radius_graph(pos, 0.45, batch), brute_force(pos, 0.45, batch))
 
 
+@pytest.mark.parametrize("max_neighbors", [None, 4])
+def test_equal_size_graphs_give_the_same_edges_without_the_batch_vector(max_neighbors):
+    """graph_size replaces the batch vector (and its read-backs) when every graph has the same size."""
+    torch.manual_seed(2)
+    pos, batch = torch.rand(3 * 17, 3), torch.arange(3).repeat_interleave(17)
+    assert torch.equal(own_radius_graph(pos, 0.4, None, max_neighbors, graph_size=17), own_radius_graph(pos, 0.4, batch, max_neighbors))
+    with pytest.raises(ValueError, match="graph_size=16"):
+        own_radius_graph(pos, 0.4, graph_size=16)
+
+
 def test_library_backend_agrees_when_available():
     torch.manual_seed(1)
     pos, batch = torch.rand(50, 3), torch.tensor([0] * 20 + [1] * 30)

@@ -37,16 +37,25 @@ def _library_backend():
 BACKEND, _LIBRARY_RADIUS_GRAPH = _library_backend()
 
 
-def own_radius_graph(pos: torch.Tensor, r: float, batch: torch.Tensor | None = None, max_neighbors: int | None = None) -> torch.Tensor:
+def own_radius_graph(pos: torch.Tensor, r: float, batch: torch.Tensor | None = None, max_neighbors: int | None = None,
+                     graph_size: int | None = None) -> torch.Tensor:
     """All pairs (j -> i), i != j, of the same graph closer than ``r``; with ``max_neighbors``,
     only the nearest ``max_neighbors`` sources of each target (ties: lower index first).
 
-    Args: pos [N, 3]; batch [N] graph id of each node, sorted (None: one graph).
+    Args: pos [N, 3]; batch [N] graph id of each node, sorted (None: one graph); graph_size: every
+    graph has this many nodes, one after another (then ``batch`` is not read, and the graph is built
+    without reading sizes back from the device: only the final ``nonzero`` waits for it).
     Returns: edge_index [2, E] sorted by target, then source.
     """
-    if batch is None:
-        batch = torch.zeros(pos.shape[0], dtype=torch.long, device=pos.device)
-    dense, mask = to_dense_batch(pos, batch)  # [B, Nmax, 3], [B, Nmax]
+    if graph_size is not None:
+        if pos.shape[0] % graph_size:
+            raise ValueError(f"own_radius_graph: {pos.shape[0]} nodes are not graphs of graph_size={graph_size}")
+        dense = pos.reshape(-1, graph_size, 3)
+        mask = torch.ones(dense.shape[:2], dtype=torch.bool, device=pos.device)
+    else:
+        if batch is None:
+            batch = torch.zeros(pos.shape[0], dtype=torch.long, device=pos.device)
+        dense, mask = to_dense_batch(pos, batch)  # [B, Nmax, 3], [B, Nmax]
     b, nmax, _ = dense.shape
     dist = torch.cdist(dense, dense, compute_mode="donot_use_mm_for_euclid_dist")
     close = (dist < r) & mask[:, :, None] & mask[:, None, :]
@@ -62,19 +71,20 @@ def own_radius_graph(pos: torch.Tensor, r: float, batch: torch.Tensor | None = N
 
 
 def radius_graph(pos: torch.Tensor, r: float, batch: torch.Tensor | None = None, backend: str | None = None,
-                 max_neighbors: int | None = None) -> torch.Tensor:
+                 max_neighbors: int | None = None, graph_size: int | None = None) -> torch.Tensor:
     """Radius graph with no self loops (see :func:`own_radius_graph`); no neighbour cap unless
     ``max_neighbors`` is given (then ours, which keeps the nearest: the libraries keep arbitrary ones).
 
-    ``backend``: None picks the library when importable, "vgpl" forces ours.
+    ``backend``: None picks the library when importable, "vgpl" forces ours. ``graph_size``: every
+    graph has this many nodes (ours then reads no sizes back from the device).
     """
     if max_neighbors is not None:
-        return own_radius_graph(pos, r, batch, max_neighbors)
+        return own_radius_graph(pos, r, batch, max_neighbors, graph_size)
     if backend != "vgpl" and _LIBRARY_RADIUS_GRAPH is not None:
         edge_index = _LIBRARY_RADIUS_GRAPH(pos, r, batch, loop=False, max_num_neighbors=pos.shape[0])
         order = torch.argsort(edge_index[1] * pos.shape[0] + edge_index[0])
         return edge_index[:, order]
-    return own_radius_graph(pos, r, batch)
+    return own_radius_graph(pos, r, batch, graph_size=graph_size)
 
 
 def max_degree(edge_index: torch.Tensor, num_nodes: int) -> int:

@@ -141,7 +141,7 @@ class DynamicsPrior(NormalisationBuffers, L.LightningModule):
         nodes = torch.cat([disp, (x - self.pos_mean) / self.pos_std, ptype, pnorm, offset], -1).reshape(b * n, -1)
         batch = torch.arange(b, device=x.device).repeat_interleave(n)
         flat = x.reshape(b * n, 3)
-        edge_index = radius_graph(flat, self.hparams.radius, batch)
+        edge_index = radius_graph(flat, self.hparams.radius, batch, graph_size=n)
         group_flat = grouping.reshape(b * n, -1)
         if planes.shape[2] > 0:
             ghost, owner, plane = plane_ghosts(flat, planes[:, h - 1], batch, self.hparams.radius)
@@ -159,7 +159,8 @@ class DynamicsPrior(NormalisationBuffers, L.LightningModule):
             edge_index = torch.cat([edge_index, torch.stack([ids, owner])], 1)
             flat = torch.cat([flat, ghost])
             group_flat = torch.cat([group_flat, group_flat.new_zeros(len(ghost), group_flat.shape[1])])
-        self.max_degree_seen = max(self.max_degree_seen, max_degree(edge_index, nodes.shape[0]))
+        if self.training:  # logged by training; frozen rollouts skip the read-back
+            self.max_degree_seen = max(self.max_degree_seen, max_degree(edge_index, nodes.shape[0]))
         return nodes, edge_index, edge_features(flat, edge_index, group_flat) / torch.cat([self.pos_std, self.pos_std.norm()[None], torch.ones(1, device=x.device)])
 
     def forward(self, history, grouping, rigidness, params, planes, kinematic, kinematic_next=None) -> torch.Tensor:

@@ -92,7 +92,7 @@ class SpatioTemporalEncoder(nn.Module):
         with torch.no_grad():
             # proposals can be far denser than real particles (an untrained prior collapses them):
             # the nearest max_neighbors keep the cost bounded
-            edge_index = radius_graph(flat_pos.detach(), self.radius, graph, max_neighbors=self.max_neighbors)
+            edge_index = radius_graph(flat_pos.detach(), self.radius, graph, max_neighbors=self.max_neighbors, graph_size=n)
         group = grouping[:, None].expand(b, t, n, -1).reshape(b * t * n, -1)
         scale = torch.cat([pos_scale, pos_scale.norm()[None], torch.ones(1, device=nodes.device)])
         edge_attr = edge_features(flat_pos, edge_index, group) / scale

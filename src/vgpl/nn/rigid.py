@@ -77,7 +77,8 @@ def momentum_projection(pos: torch.Tensor, grouping: torch.Tensor, disp: torch.T
     eye = torch.eye(3, device=pos.device)
     inertia = torch.einsum("bnm,bnmij->bmij", grouping, rel.square().sum(-1)[..., None, None] * eye - rel[..., :, None] * rel[..., None, :])
     ridge = 1e-3 * inertia.diagonal(dim1=-2, dim2=-1).mean(-1) + 1e-9  # [B, M]
-    omega = torch.linalg.solve(inertia + ridge[..., None, None] * eye, momentum)
+    # solve_ex: the ridge keeps the system regular, and skipping solve's singularity check keeps the host from waiting on the device
+    omega = torch.linalg.solve_ex(inertia + ridge[..., None, None] * eye, momentum)[0]
     # quaternion (1, w / 2): a rotation by |w| to first order, smooth at w = 0 (normalised inside)
     rotation = quaternion_to_matrix(torch.cat([torch.ones_like(omega[..., :1]), omega / 2], -1))
     return rotation, translation
