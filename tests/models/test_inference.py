@@ -130,6 +130,37 @@ def test_the_paper_scheme_rolls_each_network_with_the_true_values_of_the_others_
         torch.testing.assert_close(losses[name].detach(), ((alone - target) / dyn.disp_std).abs().mean(), rtol=1e-5, atol=1e-7)
 
 
+def test_the_authors_code_lengths_one_step_from_each_refined_history_and_two_steps_from_the_truth():
+    """refined_steps=0, truth_steps=2, one_step_windows=None (the authors' code): dX and Q learn from
+    one step off every refined history of the window, fed the true P; P from a 2-step rollout off the
+    true frames. Each loss equals the prior's prediction computed here with those inputs."""
+    from vgpl.eval.rollout import rollout
+
+    torch.manual_seed(0)
+    dyn, inf = _modules(training_scheme="paper", one_step_windows=None, refined_steps=0, truth_steps=2)
+    batch = _batch(labels=True)
+    losses = inf._losses(batch)
+    assert "rollout" not in losses and {"one_step", "rollout_from_truth"} <= set(losses)
+    torch.testing.assert_close(losses["loss"], losses["one_step"] + losses["rollout_from_truth"] + losses["refine"])
+    with torch.no_grad():
+        out = inf.infer(batch["proposals"], batch["logits"], batch["kinematic"][0])
+    truth, t, h, kin = batch["positions"], batch["proposals"].shape[1], dyn.hparams.history, batch["kinematic"][0]
+    two = rollout(dyn, torch.cat([truth[:, :h], truth[:, h : h + 2]], 1), batch["grouping"], batch["rigid"], out["params"], batch["planes"], kin, 2)
+    torch.testing.assert_close(losses["rollout_from_truth"].detach(), ((two - truth[:, h : h + 2]) / dyn.disp_std).abs().mean(), rtol=1e-5, atol=1e-7)
+    one = torch.stack([dyn.step(out["positions"][:, s : s + h], out["grouping"], out["rigidness"], batch["params"], batch["planes"][:, s : s + h + 1],
+                                kin, truth[:, s + h]) for s in range(t - h)])
+    target = torch.stack([truth[:, s + h] for s in range(t - h)])
+    torch.testing.assert_close(losses["one_step"].detach(), ((one - target) / dyn.disp_std).abs().mean(), rtol=1e-5, atol=1e-7)
+
+
+def test_a_run_longer_than_the_window_or_negative_is_refused():
+    with pytest.raises(ValueError, match="truth_steps=-1"):
+        _modules(truth_steps=-1)
+    _, inf = _modules(trajectory_start="both", truth_steps=99)
+    with pytest.raises(ValueError, match="truth_steps=99: a window holds 6 frames"):
+        inf._losses(_batch())
+
+
 def test_the_paper_scheme_needs_the_papers_two_networks():
     with pytest.raises(ValueError, match="training_scheme='paper'.*separate_param_net=true"):
         _modules(training_scheme="paper", separate_param_net=False)

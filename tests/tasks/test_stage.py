@@ -226,7 +226,8 @@ def test_the_standard_prior_ends_without_history_noise_on_its_clock():
     assert annealed_fraction(40000, max_steps, k, elapsed_s=begins_s + 1, budget_s=budget_s) < 1.0  # noise-free
     assert annealed_fraction(65301, max_steps, k, elapsed_s=60.0, budget_s=budget_s) < 1.0  # by step on a fast machine
     with initialize_config_dir(str(REPO / "conf"), version_base="1.3"):
-        assert compose("config", overrides=["env=rigid_fall", "experiment=quick"]).model.dynamics.net.noise_free_steps == 0
+        quick = compose("config", overrides=["env=rigid_fall", "experiment=quick"]).model.dynamics
+    assert (quick.net.noise_free_steps, quick.trainer.max_steps) == (750, 3000)  # the quick prior's last quarter too
 
 
 def test_the_standard_prior_and_visual_stage_train_in_bf16_where_it_is_fast_and_the_baseline_in_fp32():

@@ -13,6 +13,13 @@ one for dX and Q, one for P. ``training_scheme`` says what each rollout is fed:
   it starts: ``refined`` (the refined first frames), ``truth`` (the true ones: P and Q learn, dX
   only from its direct L1) or ``both`` (P from the true start, dX through the refined one).
 
+``refined_steps`` and ``truth_steps`` set how many frames the run from the refined start
+(``rollout``) and the run from the true start (``rollout_from_truth``) roll: null, through the rest
+of the window and ``horizon`` frames past it; 0, no such run. ``one_step_windows`` adds one-step
+predictions from refined histories. The authors' code trains dX and Q by one step from every
+refined history of the window (``one_step_windows: null, refined_steps: 0``) and P by 2 steps from
+the true frames (``truth_steps: 2``).
+
 Options beyond the paper (docs/paper.md, Departures; docs/configuration.md): ``tail_horizon`` k > 0
 adds an L1 of k frames rolled from the last ``history`` refined frames, where the evaluation starts
 (``tail_detach_params`` keeps P out of it); ``param_rotation`` shows the parameter encoder each
@@ -126,6 +133,8 @@ class InferenceModule(AnnealedLearningRate, NormalisationBuffers, L.LightningMod
         rigidness: bool = True,
         max_neighbors: int = 24,
         one_step_windows: int | None = 0,
+        refined_steps: int | None = None,
+        truth_steps: int | None = None,
         param_weight: float = 0.0,
         trajectory_start: str = "refined",
         param_lr: float | None = None,
@@ -162,6 +171,12 @@ class InferenceModule(AnnealedLearningRate, NormalisationBuffers, L.LightningMod
             raise ValueError("InferenceModule: rollout_target='proposals' trains without the simulator's trajectories, so nothing may read them: "
                              "it needs training_scheme='joint', trajectory_start='refined', refine_weight=0 and param_weight=0 (got "
                              f"{training_scheme!r}, {trajectory_start!r}, {refine_weight}, {param_weight})")
+        for name, value in (("refined_steps", refined_steps), ("truth_steps", truth_steps)):
+            if value is not None and value < 0:
+                raise ValueError(f"InferenceModule: {name}={value}, expected null (the window and horizon), 0 (no such run) or a number of frames")
+        if (refined_steps is not None or truth_steps is not None) and (rigidness_estimator == "bernoulli" or bernoulli_from_step is not None):
+            raise ValueError("InferenceModule: refined_steps / truth_steps need rigidness_estimator='blend' without bernoulli_from_step "
+                             "(the bernoulli estimator flips labels on one rollout length)")
         if rigidness_estimator not in ("blend", "bernoulli"):
             raise ValueError(f"InferenceModule: rigidness_estimator={rigidness_estimator!r}, expected 'blend' (the paper: Q is the prior's "
                              "blend weight) or 'bernoulli' (Q is the probability of the label the prior sees)")
@@ -315,13 +330,13 @@ class InferenceModule(AnnealedLearningRate, NormalisationBuffers, L.LightningMod
             pl = torch.cat([planes[:, s : s + h + 1] for s in starts])  # + the predicted frame (action)
             target = torch.cat([truth[:, s + h] for s in starts])
             n = len(starts)
-            pred = dyn.step(hist, tile_batch(g, n), tile_batch(q, n), tile_batch(p, n), pl, kinematic, target)
+            p_one = batch["params"].to(p) if self.hparams.training_scheme == "paper" else p  # the paper's dX and Q roll with the true P
+            pred = dyn.step(hist, tile_batch(g, n), tile_batch(q, n), tile_batch(p_one, n), pl, kinematic, target)
             losses["one_step"] = ((pred - target) / scale).abs()[:, movable].mean()
         # the trajectory: from the first h refined (or true) frames through the rest of the window
         # and k frames past it; a wrong parameter's error grows with every step, which makes P visible
         n_roll, mode = t - h + k, self.hparams.trajectory_start
         if n_roll > 0:
-            target = truth[:, h : t + k]
             # each run: (start frames, G, Q, P) through the frozen prior. The runs are rolled as one
             # batch of n B scenes: one graph and one prior call a step (scenes never share edges)
             if self.hparams.training_scheme == "paper":
@@ -333,13 +348,22 @@ class InferenceModule(AnnealedLearningRate, NormalisationBuffers, L.LightningMod
             else:
                 runs = {"refined": {"rollout": (x[:, :h], g, q, p)}, "truth": {"rollout_from_truth": (truth[:, :h], g, q, p)},
                         "both": {"rollout": (x[:, :h], g, q, p.detach()), "rollout_from_truth": (truth[:, :h], g, q, p)}}[mode]
-            n = len(runs)
-            start, groupings, rigidities, params = (torch.cat(z) for z in zip(*runs.values()))
-            targets = tile_batch(target, n)
-            future = rollout(dyn, torch.cat([start, targets], 1), groupings, rigidities, params, tile_batch(planes, n), kinematic, n_roll)
-            error = ((future - targets) / scale).abs()[:, :, movable]
-            for i, name in enumerate(runs):  # "both": P learns from the true start only, dX through the refined one
-                losses[name] = error[i * b : (i + 1) * b].mean()
+            # each run's length: refined_steps / truth_steps frames (null: the window and horizon; 0: no such run)
+            steps = {"rollout": self.hparams.refined_steps, "rollout_from_truth": self.hparams.truth_steps}
+            steps = {name: n_roll if steps[name] is None else steps[name] for name in runs}
+            if max(steps.values()) > n_roll:
+                raise ValueError(f"InferenceModule: refined_steps={self.hparams.refined_steps}, truth_steps={self.hparams.truth_steps}: "
+                                 f"a window holds {n_roll} frames after the prior's history (observed - history + horizon)")
+            for length in sorted({s for s in steps.values() if s > 0}):  # runs of one length roll as one batch
+                names = [name for name in runs if steps[name] == length]
+                n = len(names)
+                start, groupings, rigidities, params = (torch.cat(z) for z in zip(*(runs[name] for name in names)))
+                target = truth[:, h : h + length]
+                targets = tile_batch(target, n)
+                future = rollout(dyn, torch.cat([start, targets], 1), groupings, rigidities, params, tile_batch(planes, n), kinematic, length)
+                error = ((future - targets) / scale).abs()[:, :, movable]
+                for i, name in enumerate(names):  # "both": P learns from the true start only, dX through the refined one
+                    losses[name] = error[i * b : (i + 1) * b].mean()
             if self.estimator == "bernoulli" and self.hparams.rigidness:
                 # Q's only loss: the label of each instance flipped on the trajectory that trains P
                 i = list(runs).index("rollout_from_truth") if "rollout_from_truth" in runs else 0
