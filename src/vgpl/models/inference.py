@@ -319,6 +319,8 @@ class InferenceModule(AnnealedLearningRate, NormalisationBuffers, L.LightningMod
         out = self.infer(proposals, batch["logits"], kinematic)
         x = torch.where(kinematic[None, None, :, None], truth[:, :t], out["positions"])  # kinematic parts are known
         g, q, p = out["grouping"], out["rigidness"], out["params"]
+        paper = self.hparams.training_scheme == "paper"
+        p_dx = batch["params"].to(p) if paper else p  # the P that dX and Q learn with: the true one in the paper's scheme
         scale = dyn.disp_std
         movable = ~kinematic
         losses = {}
@@ -330,21 +332,19 @@ class InferenceModule(AnnealedLearningRate, NormalisationBuffers, L.LightningMod
             pl = torch.cat([planes[:, s : s + h + 1] for s in starts])  # + the predicted frame (action)
             target = torch.cat([truth[:, s + h] for s in starts])
             n = len(starts)
-            p_one = batch["params"].to(p) if self.hparams.training_scheme == "paper" else p  # the paper's dX and Q roll with the true P
-            pred = dyn.step(hist, tile_batch(g, n), tile_batch(q, n), tile_batch(p_one, n), pl, kinematic, target)
+            pred = dyn.step(hist, tile_batch(g, n), tile_batch(q, n), tile_batch(p_dx, n), pl, kinematic, target)
             losses["one_step"] = ((pred - target) / scale).abs()[:, movable].mean()
         # the trajectory: from the first h refined (or true) frames through the rest of the window
         # and k frames past it; a wrong parameter's error grows with every step, which makes P visible
         n_roll, mode = t - h + k, self.hparams.trajectory_start
         if n_roll > 0:
-            # each run: (start frames, G, Q, P) through the frozen prior. The runs are rolled as one
+            # each run: (start frames, G, Q, P) through the frozen prior. Runs of one length roll as one
             # batch of n B scenes: one graph and one prior call a step (scenes never share edges)
-            if self.hparams.training_scheme == "paper":
+            if paper:
                 # the paper's two networks, each with the true values of the other's outputs: dX and Q
                 # roll with the true P; P rolls from the true frames with the true G and Q
-                true_p = batch["params"].to(p)
                 true_q = batch["rigid"].to(q) if self.hparams.rigidness else torch.zeros_like(q)
-                runs = {"rollout": (x[:, :h], g, q, true_p), "rollout_from_truth": (truth[:, :h], batch["grouping"].to(g), true_q, p)}
+                runs = {"rollout": (x[:, :h], g, q, p_dx), "rollout_from_truth": (truth[:, :h], batch["grouping"].to(g), true_q, p)}
             else:
                 runs = {"refined": {"rollout": (x[:, :h], g, q, p)}, "truth": {"rollout_from_truth": (truth[:, :h], g, q, p)},
                         "both": {"rollout": (x[:, :h], g, q, p.detach()), "rollout_from_truth": (truth[:, :h], g, q, p)}}[mode]
@@ -365,7 +365,8 @@ class InferenceModule(AnnealedLearningRate, NormalisationBuffers, L.LightningMod
                 for i, name in enumerate(names):  # "both": P learns from the true start only, dX through the refined one
                     losses[name] = error[i * b : (i + 1) * b].mean()
             if self.estimator == "bernoulli" and self.hparams.rigidness:
-                # Q's only loss: the label of each instance flipped on the trajectory that trains P
+                # Q's only loss: the label of each instance flipped on the trajectory that trains P. The
+                # bernoulli estimator keeps every run at n_roll (__init__), so the batch above holds them all
                 i = list(runs).index("rollout_from_truth") if "rollout_from_truth" in runs else 0
                 scenes = slice(i * b, (i + 1) * b)
                 flipped = self.flipped_label_errors(start[scenes], target, g, q, params[scenes].detach(), planes, kinematic, n_roll)
