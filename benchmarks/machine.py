@@ -16,7 +16,7 @@ def describe() -> dict:
         "cpu": cpu,
         "isa": [flag for flag in ISA_FLAGS if flag in flags],
         "bf16_native": bf16_native(flags),
-        "cores": os.cpu_count(),
+        "cores": len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count(),  # the cores this process may run on
         "torch": torch.__version__,
         "torch_threads": torch.get_num_threads(),
         "cuda": torch.cuda.get_device_name(0) if torch.cuda.is_available() else None,

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import csv
 import json
+import math
 import re
 from pathlib import Path
 
@@ -153,6 +154,8 @@ def test_evaluation_with_truth_proposals_reads_no_video_or_visual_prior_and_says
     assert exact["proposals"] == "truth" and exact["refine_mse_x1e4_before"] == 0.0 and exact["grouping_accuracy"] == 1.0
     noisy = evaluate(config(tmp, "task=evaluate", "eval.proposals=truth", "eval.proposals_noise_std=0.01", nowhere, f"paths.output_dir={tmp_path}/noisy"))
     assert noisy["refine_mse_x1e4_before"] == pytest.approx(1.0, rel=0.1)  # (0.01 m)^2 x 1e4
+    assert exact["accel_error_mm_before"] == 0.0 and exact["accel_truth_mm"] == noisy["accel_truth_mm"] > 0
+    assert noisy["accel_error_mm_before"] == pytest.approx(10.0 * math.sqrt(12 / math.pi), rel=0.1)  # second difference of 10 mm noise: mean |.| = 10 sqrt(6) sqrt(2 / pi)
     assert "eval.proposals=truth" in (tmp_path / "noisy/report.md").read_text()
     with pytest.raises(ValueError, match="eval.proposals='video': expected 'visual'.*'truth'.*or 'exported'"):
         evaluate(config(tmp, "task=evaluate", "eval.proposals=video", f"paths.output_dir={tmp_path}/bad"))

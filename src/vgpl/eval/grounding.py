@@ -14,7 +14,7 @@ from vgpl.data.proposals import propose_windows, truth_proposals
 from vgpl.data.trajectories import Rollouts
 from vgpl.data.window_pool import check_window_pool, pool_windows
 from vgpl.eval.error_sources import RolloutInputs, error_sources
-from vgpl.eval.metrics import correct_rigidness_prob, mean_per_type, midpoint_error_pct, param_signed_error_pct, position_mse_x1e4
+from vgpl.eval.metrics import correct_rigidness_prob, mean_abs_acceleration_mm, mean_per_type, midpoint_error_pct, param_signed_error_pct, position_mse_x1e4
 from vgpl.eval.rollout import future_mse, rollout
 from vgpl.eval.test_time_fit import TestTimeFit, refit_inferred
 
@@ -136,6 +136,10 @@ def evaluate_grounding(dynamics, visual, inference, scene, test: Rollouts, ablat
     metrics["refine_mse_x1e4_before"] = position_mse_x1e4(seen_proposals, truth_seen, movable)
     refined = out["positions"] if ablation.refinement else infer_in_chunks(inference, seen_proposals, logits[:, :observed], kinematic, chunk)["positions"]
     metrics["refine_mse_x1e4_after"] = position_mse_x1e4(refined, truth_seen, movable)
+    # motion: the frames' acceleration error against the true motion's size (P's signal is in the acceleration)
+    metrics["accel_error_mm_before"] = mean_abs_acceleration_mm(seen_proposals - truth_seen, movable)
+    metrics["accel_error_mm_after"] = mean_abs_acceleration_mm(refined - truth_seen, movable)
+    metrics["accel_truth_mm"] = mean_abs_acceleration_mm(truth_seen, movable)
     # grouping accuracy of the visual prior
     metrics["grouping_accuracy"] = float((out["grouping"].argmax(-1) == test.instance[None]).float().mean())
     # Table 2: future prediction from the last h refined frames

@@ -30,6 +30,20 @@ def position_mse_x1e4(pred: torch.Tensor, truth: torch.Tensor, mask: torch.Tenso
     return float(((pred - truth) ** 2).mean() * 1e4)
 
 
+def mean_abs_acceleration_mm(positions: torch.Tensor, mask: torch.Tensor | None = None) -> float:
+    """Mean |x_(t+1) - 2 x_t + x_(t-1)| x 1e3: the per-frame acceleration in mm per frame squared,
+    over rollouts, frames, particles (``mask`` [N] selects) and coordinates. positions [R, T, N, 3]
+    in metres, T >= 3. The second difference is linear, so ``mean_abs_acceleration_mm(pred - truth)``
+    is the acceleration error of ``pred``: the noise a parameter network must average away to read
+    a force such as gravity from the frames."""
+    if positions.shape[1] < 3:
+        raise ValueError(f"mean_abs_acceleration_mm: {positions.shape[1]} frames, a second difference needs at least 3")
+    if mask is not None:
+        positions = positions[..., mask, :]
+    accel = positions[:, 2:] - 2.0 * positions[:, 1:-1] + positions[:, :-2]
+    return float(accel.abs().mean() * 1e3)
+
+
 def correct_rigidness_prob(rigidness: torch.Tensor, rigid: torch.Tensor) -> torch.Tensor:
     """Probability given to the true label per scene and instance [B, M]: q where rigid, 1 - q elsewhere."""
     return torch.where(rigid[None].bool(), rigidness, 1.0 - rigidness)
