@@ -83,3 +83,9 @@ class Propagator(MessagePassing):
 
     def message(self, x_i: torch.Tensor, x_j: torch.Tensor, edge_term: torch.Tensor) -> torch.Tensor:
         return torch.relu(edge_term + x_i + x_j)
+
+    def aggregate(self, inputs: torch.Tensor, index: torch.Tensor, ptr: torch.Tensor | None = None, dim_size: int | None = None) -> torch.Tensor:
+        """The messages [E, W'] summed at their receivers ``index`` [E] -> [dim_size, W']. The same sum
+        as the "sum" aggregation's scatter, whose backward gathers through an index as wide as the
+        messages; index_add's backward is an index_select of the receivers' gradients."""
+        return inputs.new_zeros(dim_size, inputs.shape[-1]).index_add_(0, index, inputs)
