@@ -7,7 +7,7 @@ falls on both alike.
     python benchmarks/aggregation.py --env rigid_fall --presets quick standard   # JSON lines on stdout
 
 A step is the module's loss, backward and Adam in fp32 on one window of engine-simulated rollouts
-(``inference_parts.setup``). Each round times ``--steps`` steps of each variant after one warm-up
+(``inference_parts.setup``, ``inference_device.make_step``). Each round times ``--steps`` steps of each variant after one warm-up
 step; the line gives the median of ``--rounds`` rounds and the rounds in which index_add was faster.
 """
 
@@ -24,6 +24,7 @@ import torch
 from torch_geometric.nn import MessagePassing
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
+from inference_device import make_step  # noqa: E402
 from inference_parts import setup  # noqa: E402
 from machine import describe  # noqa: E402
 
@@ -33,13 +34,11 @@ VARIANTS = {"scatter": MessagePassing.aggregate, "index_add": propagation.Propag
 WIDTHS = {"quick": 32, "standard": 150}
 
 
-def step_ms(model, window, optimiser, steps: int) -> float:
+def step_ms(step, steps: int) -> float:
+    """Mean milliseconds of ``steps`` calls of ``step``."""
     start = time.perf_counter()
     for _ in range(steps):
-        loss = model._losses(window)["loss"]
-        optimiser.zero_grad()
-        loss.backward()
-        optimiser.step()
+        step()
     return (time.perf_counter() - start) / steps * 1e3
 
 
@@ -54,13 +53,13 @@ def main() -> None:
     torch.set_num_threads(args.threads)
     for preset in args.presets:
         _, model, window = setup(args.env, WIDTHS[preset], 2, preset)
-        optimiser = torch.optim.Adam(model.parameters(), lr=1e-6)
+        step = make_step(model, window, torch.device("cpu"), bf16=False)
         rounds = {name: [] for name in VARIANTS}
         for _ in range(args.rounds):
             for name, aggregate in VARIANTS.items():
                 propagation.Propagator.aggregate = aggregate
-                step_ms(model, window, optimiser, 1)
-                rounds[name].append(step_ms(model, window, optimiser, args.steps))
+                step_ms(step, 1)
+                rounds[name].append(step_ms(step, args.steps))
         propagation.Propagator.aggregate = VARIANTS["index_add"]
         median = {name: statistics.median(ms) for name, ms in rounds.items()}
         print(json.dumps({"benchmark": "aggregation", "env": args.env, "preset": preset, "width": WIDTHS[preset], "batch": 2, "precision": "32-true",
