@@ -5,7 +5,8 @@ seconds and each training's steps run of those asked, with the machine described
     python benchmarks/main_job.py --keep /tmp/mj  # keep its data, checkpoints and run folder
 
 It runs `run.py` in a fresh root folder (data, checkpoints and outputs under it), so nothing
-generated or trained before is reused, then reads the run's ``pipeline.json``. Extra arguments
+generated or trained before is reused, then reads the run's ``pipeline.json`` and its parameter numbers
+(``accuracy``). Extra arguments
 after ``--`` go to run.py as Hydra overrides.
 """
 
@@ -26,6 +27,23 @@ from machine import describe  # noqa: E402
 REPO = Path(__file__).resolve().parents[1]
 
 
+ACCURACY_KEYS = ("n_test", "param_mae_pct", "param_mae_pct_std", "param_bias_pct", "midpoint_param_mae_pct")
+
+
+def accuracy(run_dir: Path) -> dict:
+    """The run's parameter numbers: each evaluated ablation's test MAE, its std and bias, and the range
+    midpoint's MAE on the same videos (``evaluate/<ablation>/metrics.json``); the prior's oracle
+    (``identifiability/identifiability.json``)."""
+    out = {"evaluate": {}}
+    for metrics in sorted(run_dir.glob("evaluate/*/metrics.json")):
+        m = json.loads(metrics.read_text())
+        out["evaluate"][metrics.parent.name] = {k: round(m[k], 3) if isinstance(m[k], float) else m[k] for k in ACCURACY_KEYS if k in m}
+    ident = run_dir / "identifiability" / "identifiability.json"
+    if ident.exists():
+        out |= {k: round(v, 3) for k, v in json.loads(ident.read_text()).items() if k.startswith("oracle_param_mae_pct/")}
+    return out
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--keep", help="root folder to run in and keep (default: a temporary one, removed after)")
@@ -42,7 +60,7 @@ def main() -> None:
     if proc.returncode != 0:
         sys.exit(f"main job failed ({' '.join(command)}):\n{proc.stderr[-3000:]}")
     summary = json.loads((run_dir / "pipeline.json").read_text())
-    print(json.dumps({"benchmark": "main_job", "wall_s": round(wall, 1), "overrides": args.overrides, **summary, "machine": describe()}))
+    print(json.dumps({"benchmark": "main_job", "wall_s": round(wall, 1), "overrides": args.overrides, **summary, **accuracy(run_dir), "machine": describe()}))
     if not args.keep:
         shutil.rmtree(root)
 

@@ -4,6 +4,7 @@ parameter guess, and evaluation from the saved checkpoints reproduces its number
 from __future__ import annotations
 
 import csv
+import importlib.util
 import json
 import math
 import re
@@ -115,6 +116,20 @@ def test_every_ablation_and_the_baseline_are_in_the_report(tiny):
     for name in ("rigidness.png", "particles.png", "params.png", "rollout_truth_vs_prediction.gif", "table1.csv", "table2.csv"):
         assert (tmp / "run/evaluate/full" / name).is_file()
     assert list((tmp / "run/evaluate/full/tensorboard").glob("events.out.tfevents.*"))
+    read = benchmark_module("main_job").accuracy(tmp / "run")  # what benchmarks/main_job.py records beside the timings
+    assert set(read["evaluate"]) == {"full", "no_rigidness", "no_refinement", "no_params", "densephysnet"}
+    assert read["evaluate"]["full"]["param_mae_pct"] == pytest.approx(full["param_mae_pct"], abs=1e-3)
+    assert read["evaluate"]["no_params"]["param_mae_pct"] == pytest.approx(no_params["param_mae_pct"], abs=1e-3)
+    assert read["evaluate"]["full"]["n_test"] == full["n_test"] == 24
+    assert f"- gravity: oracle {read['oracle_param_mae_pct/gravity']:.1f}%" in text  # the oracle the report prints
+
+
+def benchmark_module(name: str):
+    """benchmarks/<name>.py imported as a module (benchmarks/ is not a package)."""
+    spec = importlib.util.spec_from_file_location(f"benchmark_{name}", REPO / "benchmarks" / f"{name}.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
 
 
 def test_rigidness_curve_has_one_value_per_observation_length(tiny):
