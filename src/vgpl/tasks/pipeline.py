@@ -24,6 +24,7 @@ from pathlib import Path
 from omegaconf import DictConfig, OmegaConf
 
 from vgpl.eval.tables import write_tables
+from vgpl.tasks.at_once import run_at_once, threads_each
 from vgpl.tasks.evaluate import evaluate
 from vgpl.tasks.generate import generate
 from vgpl.tasks.identifiability import check_identifiability, identifiability_summary
@@ -52,6 +53,30 @@ def step_config(cfg: DictConfig, out: Path, step: str, **updates) -> DictConfig:
     c.paths.output_dir = str(out / step)
     for key, value in updates.items():
         c[key] = value
+    return c
+
+
+def modules_at_once(cfg: DictConfig, modules: list[str]) -> bool:
+    """Whether the inference modules train side by side (``task.modules_at_once``): on a CPU with at
+    least one thread for each; otherwise one after the other, as on an accelerator."""
+    if not cfg.task.get("modules_at_once", False) or len(modules) < 2:
+        return False
+    if cfg.device != "cpu" or int(cfg.threads) < len(modules):
+        log.info("task.modules_at_once: %d modules on device=%s with threads=%s train one after the other "
+                 "(side by side needs a CPU and a thread for each)", len(modules), cfg.device, cfg.threads)
+        return False
+    return True
+
+
+def module_config(c: DictConfig, threads: int, max_time: float | None) -> DictConfig:
+    """A module's step config for training beside the others: ``threads`` torch threads, the
+    pair's ``max_time`` (s; None: the stage's own) and no progress bar (the bars would interleave)."""
+    c.threads = threads
+    trainer = OmegaConf.to_container(c.model.inference.get("trainer") or OmegaConf.create({}))
+    trainer["enable_progress_bar"] = False
+    if max_time is not None:
+        trainer["max_time"] = {"seconds": max_time}
+    c.model.inference.trainer = trainer
     return c
 
 
@@ -110,8 +135,17 @@ def pipeline(cfg: DictConfig) -> dict:
     identifiability = run("identifiability", check_identifiability)
     trained["train_visual"] = run("train_visual", train_visual)
     run("export_proposals", export_proposals)
-    for step in stages:  # the inference modules (full [and no_rigidness]) in the order the budget planned them
-        if step.startswith("train_inference/"):
+    modules = [step for step in stages if step.startswith("train_inference/")]  # full [and no_rigidness], in the budget's order
+    if modules_at_once(cfg, modules):
+        start = time.perf_counter()
+        max_time = budget.max_time_together(modules)
+        configs = {step: module_config(step_config(cfg, out, step, ablation=ablation_config(step.removeprefix("train_inference/"))),
+                                       threads_each(int(cfg.threads), len(modules)), max_time) for step in modules}
+        log.info("pipeline: %s at once, %d thread(s) each", " and ".join(modules), threads_each(int(cfg.threads), len(modules)))
+        trained |= run_at_once(train_inference, configs)
+        times |= dict.fromkeys(modules, round(time.perf_counter() - start, 1))  # side by side: each step's time is the pair's
+    else:
+        for step in modules:
             trained[step] = run(step, train_inference, ablation=ablation_config(step.removeprefix("train_inference/")))
     baseline = "train_baseline" in stages
     if baseline:

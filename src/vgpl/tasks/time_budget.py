@@ -85,6 +85,26 @@ class TimeBudget:
                         "for %.0f s of planned training%s", step, given, planned, max(left, 0.0), ahead, overrun)
         return given
 
+    def max_time_together(self, steps: list[str]) -> float | None:
+        """The max_time (s) for ``steps``, which all start now and run at once: the time their plans
+        take one after another, scaled as ``max_time`` scales one training (None when one of them
+        has no clock). Every step gets that whole time, as they share the machine throughout."""
+        planned = [self.ahead.pop(step) for step in steps]
+        if any(p is None for p in planned):
+            return None
+        group = sum(planned)
+        if self.total_s is None:
+            return group
+        ahead = group + sum(p for p in self.ahead.values() if p is not None)
+        left = self.total_s - (self.clock() - self.start) - self.reserve_s
+        given = scaled_max_time(group, ahead, left, self.floor)
+        for step in steps:
+            self.given[step] = {"planned_s": group, "max_time_s": round(given, 1), "left_s": round(left, 1)}
+        if given < group:
+            log.warning("task.time_budget: %s, at once, get max_time %.0f s of their planned %.0f s; %.0f s of the budget remain "
+                        "for %.0f s of planned training", " and ".join(steps), given, group, max(left, 0.0), ahead)
+        return given
+
     def shortened(self, step: str) -> bool:
         """Whether the budget gave ``step`` (already handed its max_time) less than its plan."""
         g = self.given.get(step)

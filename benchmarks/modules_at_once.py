@@ -1,0 +1,83 @@
+"""Two InferenceModules trained side by side, one thread each, against one trained alone on all the
+threads (``task.modules_at_once``): training steps per second, from nothing, at a preset's settings.
+
+    python benchmarks/modules_at_once.py --presets quick standard   # JSON lines on stdout
+
+A step is the module's loss, backward and Adam in fp32 on one window of engine-simulated rollouts
+(``inference_parts.setup``, ``inference_device.make_step``). "alone" runs one process with
+``--threads`` threads for ``--seconds``; "side_by_side" two spawned processes with half the threads
+each, started together for the same seconds. ``gain`` is the pair's steps per second over the lone
+one's: what running the pipeline's two modules at once buys each of them in the same minutes.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import multiprocessing
+import sys
+import time
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from machine import describe  # noqa: E402
+
+WIDTHS = {"quick": 32, "standard": 150}
+
+
+def steps_per_second(env: str, preset: str, threads: int, seconds: float, start=None, results=None) -> float:
+    """Steps per second of the module's training step on ``threads`` threads over ``seconds`` (after
+    one warm-up step and, with ``start``, once every process is ready); also put on ``results``."""
+    import torch
+
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    from inference_device import make_step
+    from inference_parts import setup
+
+    torch.set_num_threads(threads)
+    _, model, window = setup(env, WIDTHS[preset], 2, preset)
+    step = make_step(model, window, torch.device("cpu"), bf16=False)
+    step()
+    if start is not None:
+        start.wait()
+    begin, n = time.perf_counter(), 0
+    while time.perf_counter() - begin < seconds:
+        step()
+        n += 1
+    rate = n / (time.perf_counter() - begin)
+    if results is not None:
+        results.put(rate)
+    return rate
+
+
+def side_by_side(env: str, preset: str, threads: int, seconds: float, jobs: int = 2) -> list[float]:
+    """Each of ``jobs`` spawned processes' steps per second, all stepping at once."""
+    context = multiprocessing.get_context("spawn")
+    start, results = context.Barrier(jobs), context.Queue()
+    procs = [context.Process(target=steps_per_second, args=(env, preset, max(1, threads // jobs), seconds, start, results)) for _ in range(jobs)]
+    for p in procs:
+        p.start()
+    rates = [results.get() for _ in procs]
+    for p in procs:
+        p.join()
+    return rates
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--env", default="rigid_fall", choices=["rigid_fall", "fluid_cube", "mass_rope"])
+    parser.add_argument("--presets", nargs="+", default=["quick"], choices=list(WIDTHS))
+    parser.add_argument("--threads", type=int, default=2)
+    parser.add_argument("--seconds", type=float, default=40.0)
+    args = parser.parse_args()
+    for preset in args.presets:
+        alone = steps_per_second(args.env, preset, args.threads, args.seconds)
+        pair = side_by_side(args.env, preset, args.threads, args.seconds)
+        print(json.dumps({"benchmark": "modules_at_once", "env": args.env, "preset": preset, "width": WIDTHS[preset], "batch": 2,
+                          "precision": "32-true", "threads": args.threads, "seconds": args.seconds,
+                          "steps_per_s": {"alone": round(alone, 2), "side_by_side": [round(r, 2) for r in pair]},
+                          "gain": round(sum(pair) / alone, 3), "machine": describe()}), flush=True)
+
+
+if __name__ == "__main__":
+    main()
