@@ -61,7 +61,8 @@ def test_trainings_at_once_get_the_time_their_plans_take_one_after_the_other():
 
 def pipeline_with_stand_ins(tmp_path, monkeypatch, *overrides):
     """python run.py (the quick preset) with every step a stand-in, run_at_once run in this
-    process on the budget's clock; returns (what each module's stand-in saw, pipeline.json)."""
+    process on the budget's clock; returns (what each module's stand-in saw and the report's
+    notes under "report", pipeline.json)."""
     clock = Clock()
     monkeypatch.setattr(time_budget_module, "time", SimpleNamespace(perf_counter=clock))
     monkeypatch.setattr(pipeline_module, "time", SimpleNamespace(perf_counter=clock))
@@ -89,7 +90,7 @@ def pipeline_with_stand_ins(tmp_path, monkeypatch, *overrides):
     monkeypatch.setattr(pipeline_module, "train_inference", train)
     monkeypatch.setattr(pipeline_module, "run_at_once", at_once)
     monkeypatch.setattr(pipeline_module, "evaluate", lambda c: {"ablation": c.ablation.name})
-    monkeypatch.setattr(pipeline_module, "write_tables", lambda records, out, text: text)
+    monkeypatch.setattr(pipeline_module, "write_tables", lambda records, out, text: seen.setdefault("report", text))
     with initialize_config_dir(str(REPO / "conf"), version_base="1.3"):
         cfg = compose("config", overrides=[f"paths.output_dir={tmp_path}", *overrides])
     pipeline_module.pipeline(cfg)
@@ -98,6 +99,8 @@ def pipeline_with_stand_ins(tmp_path, monkeypatch, *overrides):
 
 def test_the_quick_preset_trains_its_two_modules_side_by_side_on_one_thread_each(tmp_path, monkeypatch):
     seen, summary = pipeline_with_stand_ins(tmp_path, monkeypatch, "task.time_budget.total=00:00:10:00")  # on time: the plans' own caps
+    report = seen.pop("report")
+    assert "- train_inference/full: 1 of 2 steps, 260 s side by side with train_inference/no_rigidness **stopped by" in report
     assert seen == {f"train_inference/{a}": {"threads": 1, "max_time": 260.0, "progress_bar": False, "ablation": a} for a in ("full", "no_rigidness")}
     assert summary["times_s"]["train_inference/full"] == summary["times_s"]["train_inference/no_rigidness"] == 260.0
     assert summary["trained"]["train_inference/full"]["planned_s"] == 260.0
@@ -106,6 +109,7 @@ def test_the_quick_preset_trains_its_two_modules_side_by_side_on_one_thread_each
 @pytest.mark.parametrize("override", ["threads=1", "task.modules_at_once=false"])
 def test_without_a_thread_for_each_module_they_train_one_after_the_other(tmp_path, monkeypatch, override):
     seen, summary = pipeline_with_stand_ins(tmp_path, monkeypatch, override, "task.time_budget.total=00:00:10:00")
+    assert "side by side" not in seen.pop("report")
     threads = 1 if override == "threads=1" else 2
     assert seen == {f"train_inference/{a}": {"threads": threads, "max_time": 130.0, "progress_bar": True, "ablation": a} for a in ("full", "no_rigidness")}
     assert summary["times_s"]["train_inference/full"] == 0.0  # the stand-in takes no time on its own: nothing ran beside it

@@ -136,7 +136,8 @@ def pipeline(cfg: DictConfig) -> dict:
     trained["train_visual"] = run("train_visual", train_visual)
     run("export_proposals", export_proposals)
     modules = [step for step in stages if step.startswith("train_inference/")]  # full [and no_rigidness], in the budget's order
-    if modules_at_once(cfg, modules):
+    together = modules if modules_at_once(cfg, modules) else []
+    if together:
         start = time.perf_counter()
         max_time = budget.max_time_together(modules)
         configs = {step: module_config(step_config(cfg, out, step, ablation=ablation_config(step.removeprefix("train_inference/"))),
@@ -161,7 +162,7 @@ def pipeline(cfg: DictConfig) -> dict:
             curve_from = str(out / f"evaluate/{a}" / "metrics.json")
     if baseline:
         records.append(run("evaluate/densephysnet", evaluate, model={**OmegaConf.to_container(cfg.model, resolve=True), "name": "densephysnet"}))
-    notes = ("" if identifiability.get("skipped") else identifiability_summary(identifiability)) + training_summary(trained, times, budget.given)
+    notes = ("" if identifiability.get("skipped") else identifiability_summary(identifiability)) + training_summary(trained, times, budget.given, together)
     text = write_tables(records, out, notes)
     print(text)
     log.info("pipeline step times (s): %s", times)
@@ -171,10 +172,12 @@ def pipeline(cfg: DictConfig) -> dict:
     return {"env": cfg.env.name, "identifiability": identifiability, "records": records, "times_s": times, "report": str(out / "report.md")}
 
 
-def training_summary(trained: dict[str, dict], times: dict[str, float], given: dict[str, dict] | None = None) -> str:
+def training_summary(trained: dict[str, dict], times: dict[str, float], given: dict[str, dict] | None = None,
+                     together: list[str] = ()) -> str:
     """Markdown lines: each training step's steps run of those asked and its time, flagging those
-    that trainer.max_time cut short (their numbers depend on the machine's speed) and those whose
-    max_time the pipeline's time budget shortened (``given``: TimeBudget.given)."""
+    that trainer.max_time cut short (their numbers depend on the machine's speed), those whose
+    max_time the pipeline's time budget shortened (``given``: TimeBudget.given) and those trained
+    side by side (``together``: their time is the group's)."""
     lines = ["", "Training steps run (of max_steps) and wall time:", ""]
     for step, result in trained.items():
         if "steps" not in result:  # DDP ranks other than 0 return no metrics
@@ -183,5 +186,7 @@ def training_summary(trained: dict[str, dict], times: dict[str, float], given: d
         g = (given or {}).get(step)
         if g and g["max_time_s"] < g["planned_s"]:
             cut += f" (task.time_budget shortened its max_time from {g['planned_s']:.0f} s to {g['max_time_s']:.0f} s)"
-        lines.append(f"- {step}: {result['steps']} of {result['max_steps']} steps, {times.get(step, float('nan')):.0f} s{cut}")
+        beside = [other for other in together if other != step] if step in together else []
+        at_once = f" side by side with {' and '.join(beside)}" if beside else ""
+        lines.append(f"- {step}: {result['steps']} of {result['max_steps']} steps, {times.get(step, float('nan')):.0f} s{at_once}{cut}")
     return "\n".join(lines) + "\n"
