@@ -138,11 +138,11 @@ def pipeline(cfg: DictConfig) -> dict:
     modules = [step for step in stages if step.startswith("train_inference/")]  # full [and no_rigidness], in the budget's order
     together = modules if modules_at_once(cfg, modules) else []
     if together:
-        start = time.perf_counter()
+        start, each = time.perf_counter(), threads_each(int(cfg.threads), len(modules))
         max_time = budget.max_time_together(modules)
-        configs = {step: module_config(step_config(cfg, out, step, ablation=ablation_config(step.removeprefix("train_inference/"))),
-                                       threads_each(int(cfg.threads), len(modules)), max_time) for step in modules}
-        log.info("pipeline: %s at once, %d thread(s) each", " and ".join(modules), threads_each(int(cfg.threads), len(modules)))
+        configs = {step: module_config(step_config(cfg, out, step, ablation=ablation_config(step.removeprefix("train_inference/"))), each, max_time)
+                   for step in modules}
+        log.info("pipeline: %s side by side, %d thread(s) each", " and ".join(modules), each)
         trained |= run_at_once(train_inference, configs)
         times |= dict.fromkeys(modules, round(time.perf_counter() - start, 1))  # side by side: each step's time is the pair's
     else:
