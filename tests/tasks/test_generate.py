@@ -23,7 +23,7 @@ def config(root, *overrides):
             "config",
             overrides=[
                 "task=generate", "env=rigid_fall", "env.scene.n_steps=8", f"data.root={root}",
-                "data.n_rollouts=7", "data.shard_size=2", "data.batch_size=2", "data.progress=false",
+                "data.n_rollouts=7", "data.train_fraction=0.8", "data.shard_size=2", "data.batch_size=2", "data.progress=false",
                 "paths.output_dir=" + str(root), *overrides,
             ],
         )
