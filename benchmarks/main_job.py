@@ -5,9 +5,8 @@ seconds and each training's steps run of those asked, with the machine described
     python benchmarks/main_job.py --keep /tmp/mj  # keep its data, checkpoints and run folder
 
 It runs `run.py` in a fresh root folder (data, checkpoints and outputs under it), so nothing
-generated or trained before is reused, then reads the run's ``pipeline.json`` and its parameter numbers
-(``accuracy``). Extra arguments
-after ``--`` go to run.py as Hydra overrides.
+generated or trained before is reused, then reads the run's ``pipeline.json`` and its parameter
+numbers (``accuracy``). Extra arguments after ``--`` go to run.py as Hydra overrides.
 """
 
 from __future__ import annotations

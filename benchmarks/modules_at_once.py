@@ -19,8 +19,14 @@ import sys
 import time
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
+import torch
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))  # also in the spawned processes, which import this file
+from inference_device import make_step  # noqa: E402
+from inference_parts import setup  # noqa: E402
 from machine import describe  # noqa: E402
+
+from vgpl.tasks.at_once import threads_each  # noqa: E402
 
 WIDTHS = {"quick": 32, "standard": 150}
 
@@ -28,12 +34,6 @@ WIDTHS = {"quick": 32, "standard": 150}
 def steps_per_second(env: str, preset: str, threads: int, seconds: float, start=None, results=None) -> float:
     """Steps per second of the module's training step on ``threads`` threads over ``seconds`` (after
     one warm-up step and, with ``start``, once every process is ready); also put on ``results``."""
-    import torch
-
-    sys.path.insert(0, str(Path(__file__).resolve().parent))
-    from inference_device import make_step
-    from inference_parts import setup
-
     torch.set_num_threads(threads)
     _, model, window = setup(env, WIDTHS[preset], 2, preset)
     step = make_step(model, window, torch.device("cpu"), bf16=False)
@@ -54,7 +54,7 @@ def side_by_side(env: str, preset: str, threads: int, seconds: float, jobs: int 
     """Each of ``jobs`` spawned processes' steps per second, all stepping at once."""
     context = multiprocessing.get_context("spawn")
     start, results = context.Barrier(jobs), context.Queue()
-    procs = [context.Process(target=steps_per_second, args=(env, preset, max(1, threads // jobs), seconds, start, results)) for _ in range(jobs)]
+    procs = [context.Process(target=steps_per_second, args=(env, preset, threads_each(threads, jobs), seconds, start, results)) for _ in range(jobs)]
     for p in procs:
         p.start()
     rates = [results.get() for _ in procs]

@@ -72,23 +72,12 @@ class TimeBudget:
     def max_time(self, step: str) -> float | None:
         """The max_time (s) for ``step``, which starts now; call it once per training. It is the
         planned one unless ``shortened(step)``."""
-        planned = self.ahead.pop(step)
-        if self.total_s is None or planned is None:
-            return planned
-        ahead = planned + sum(p for p in self.ahead.values() if p is not None)
-        left = self.total_s - (self.clock() - self.start) - self.reserve_s
-        given = scaled_max_time(planned, ahead, left, self.floor)
-        self.given[step] = {"planned_s": planned, "max_time_s": round(given, 1), "left_s": round(left, 1)}
-        if given < planned:
-            overrun = " (at its floor: the budget will be overrun)" if given <= planned * self.floor else ""
-            log.warning("task.time_budget: %s gets max_time %.0f s of its planned %.0f s; %.0f s of the budget remain "
-                        "for %.0f s of planned training%s", step, given, planned, max(left, 0.0), ahead, overrun)
-        return given
+        return self.max_time_together([step])
 
     def max_time_together(self, steps: list[str]) -> float | None:
         """The max_time (s) for ``steps``, which all start now and run at once: the time their plans
-        take one after another, scaled as ``max_time`` scales one training (None when one of them
-        has no clock). Every step gets that whole time, as they share the machine throughout."""
+        take one after another, scaled as one training's plan is scaled (None when one of them has
+        no clock). Every step gets that whole time, as they share the machine throughout."""
         planned = [self.ahead.pop(step) for step in steps]
         if any(p is None for p in planned):
             return None
@@ -101,8 +90,10 @@ class TimeBudget:
         for step in steps:
             self.given[step] = {"planned_s": group, "max_time_s": round(given, 1), "left_s": round(left, 1)}
         if given < group:
-            log.warning("task.time_budget: %s, at once, get max_time %.0f s of their planned %.0f s; %.0f s of the budget remain "
-                        "for %.0f s of planned training", " and ".join(steps), given, group, max(left, 0.0), ahead)
+            who, whose = (f"{steps[0]} gets", "its") if len(steps) == 1 else (f"{' and '.join(steps)}, side by side, get", "their")
+            overrun = " (at its floor: the budget will be overrun)" if given <= group * self.floor else ""
+            log.warning("task.time_budget: %s max_time %.0f s of %s planned %.0f s; %.0f s of the budget remain "
+                        "for %.0f s of planned training%s", who, given, whose, group, max(left, 0.0), ahead, overrun)
         return given
 
     def shortened(self, step: str) -> bool:
