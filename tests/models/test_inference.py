@@ -329,6 +329,29 @@ def test_without_param_lr_one_group_and_a_bad_one_is_refused():
         _modules(param_lr=0)
 
 
+def _gradient_norm(weights) -> float:
+    return torch.nn.utils.get_total_norm([w.grad for w in weights]).item()
+
+
+def test_norm_clipping_clips_each_network_on_its_own():
+    """P's small gradient keeps its size when the refinement network's is clipped (no shared factor)."""
+    _, inf = _modules(separate_param_net=True)
+    pathway = inf.param_pathway()
+    in_pathway = {id(w) for w in pathway}
+    rest = [w for w in inf.parameters() if id(w) not in in_pathway]
+    for weights, value in ((pathway, 1e-3), (rest, 10.0)):
+        for w in weights:
+            w.grad = torch.full_like(w, value)
+    before = [w.grad.clone() for w in pathway]
+    inf.configure_gradient_clipping(inf.configure_optimizers(), gradient_clip_val=1.0, gradient_clip_algorithm="norm")
+    assert all(torch.equal(w.grad, g) for w, g in zip(pathway, before))
+    assert _gradient_norm(rest) == pytest.approx(1.0, rel=1e-5)
+    for w in pathway:  # a large P gradient is clipped to the same norm, on its own
+        w.grad = torch.full_like(w, 10.0)
+    inf.configure_gradient_clipping(inf.configure_optimizers(), gradient_clip_val=1.0, gradient_clip_algorithm="norm")
+    assert _gradient_norm(pathway) == pytest.approx(1.0, rel=1e-5) and _gradient_norm(rest) == pytest.approx(1.0, rel=1e-5)
+
+
 def _fit_annealed(root, max_epochs: int = -1, clock_s: float | None = None) -> list[list[float]]:
     """8 steps (max_steps 8) of batch 1 with the last 4 annealed, lr 1e-4 and param_lr 3e-3."""
     _, inf = _modules(lr=1e-4, param_lr=3e-3, lr_anneal_steps=4)

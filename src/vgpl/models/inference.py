@@ -428,6 +428,20 @@ class InferenceModule(AnnealedLearningRate, NormalisationBuffers, L.LightningMod
         modules = [self.param_head] + ([self.param_encoder] if self.param_encoder is not None else [])
         return [w for m in modules for w in m.parameters()]
 
+    def configure_gradient_clipping(self, optimizer, gradient_clip_val=None, gradient_clip_algorithm=None) -> None:
+        """The trainer's norm clipping applied to each network on its own when P has its own
+        (``separate_param_net``): the parameter pathway's gradient norm and the rest's are each
+        clipped to ``gradient_clip_val``. One global norm would scale P's small gradients by the
+        refinement network's norm, a factor that changes from step to step and has nothing to do
+        with P. Value clipping, or one shared encoder, clips as Lightning does."""
+        if not gradient_clip_val or self.param_encoder is None or (gradient_clip_algorithm or "norm") != "norm":
+            self.clip_gradients(optimizer, gradient_clip_val, gradient_clip_algorithm)
+            return
+        pathway = self.param_pathway()
+        in_pathway = {id(w) for w in pathway}
+        for weights in (pathway, [w for w in self.parameters() if id(w) not in in_pathway]):
+            torch.nn.utils.clip_grad_norm_([w for w in weights if w.grad is not None], gradient_clip_val)
+
     def configure_optimizers(self):
         """Adam at ``lr``; the parameter pathway at ``param_lr`` when set (Adam moves a weight by
         about its rate a step)."""
