@@ -245,6 +245,16 @@ def test_the_standard_prior_and_visual_stage_train_in_bf16_where_it_is_fast_and_
     assert trainer_kwargs(fp32, fp32.model.dynamics)["precision"] == "32-true"
 
 
+def test_the_quick_prior_trains_in_fp32_on_every_cpu_and_its_other_stages_where_bf16_is_native():
+    """At width 48 the quick prior's step is faster in fp32 even where the CPU has bf16 units
+    (docs/benchmarks.md), so the preset fixes its precision; the visual prior and the modules keep
+    the CPU's choice."""
+    with initialize_config_dir(str(REPO / "conf"), version_base="1.3"):
+        cfg = compose("config", overrides=["env=rigid_fall", "experiment=quick"])
+    precision = {stage: trainer_kwargs(cfg, cfg.model[stage])["precision"] for stage in ("dynamics", "visual", "inference")}
+    assert precision == {"dynamics": "32-true", "visual": fast_precision("bf16-mixed"), "inference": fast_precision("bf16-mixed")}
+
+
 @pytest.mark.parametrize(("env", "prior", "module"), [("rigid_fall", "00:00:20:00", "00:01:03:00"),
                                                       ("mass_rope", "00:00:58:00", "00:00:25:00"), ("fluid_cube", "00:00:58:00", "00:00:25:00")])
 def test_the_standard_split_of_minutes_between_prior_and_module_is_per_env(env, prior, module):
