@@ -378,7 +378,9 @@ def test_grounding_a_test_video_from_its_frames_alone_gives_the_evaluations_numb
         row = evaluated.rollout_ids.index(int(videos.rollout_ids[k]))
         assert g.params["gravity"] == pytest.approx(float(evaluated.inferred[row, 0]), rel=1e-4)
         mse = float(((g.future[9] - torch.as_tensor(videos.positions[k, 19])) ** 2).mean() * 1e4)  # T+10 after 10 observed frames
-        assert mse == pytest.approx(float(evaluated.columns["future_mse_x1e4@10"][row]), rel=1e-3)
+        # the evaluation infers and rolls its videos as one batch, the Grounder one video: float differences
+        # (1e-4 in P above) grow through 10 rolled steps with contacts, so 1%, far below any real mismatch
+        assert mse == pytest.approx(float(evaluated.columns["future_mse_x1e4@10"][row]), rel=1e-2)
     frames = tmp_path / "frames"
     frames.mkdir()
     for t, image in enumerate(videos.images[3]):
