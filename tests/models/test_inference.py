@@ -336,9 +336,7 @@ def _gradient_norm(weights) -> float:
 def test_norm_clipping_clips_each_network_on_its_own():
     """P's small gradient keeps its size when the refinement network's is clipped (no shared factor)."""
     _, inf = _modules(separate_param_net=True)
-    pathway = inf.param_pathway()
-    in_pathway = {id(w) for w in pathway}
-    rest = [w for w in inf.parameters() if id(w) not in in_pathway]
+    pathway, rest = inf.pathway_and_rest()
     for weights, value in ((pathway, 1e-3), (rest, 10.0)):
         for w in weights:
             w.grad = torch.full_like(w, value)

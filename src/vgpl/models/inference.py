@@ -437,19 +437,21 @@ class InferenceModule(AnnealedLearningRate, NormalisationBuffers, L.LightningMod
         if not gradient_clip_val or self.param_encoder is None or (gradient_clip_algorithm or "norm") != "norm":
             self.clip_gradients(optimizer, gradient_clip_val, gradient_clip_algorithm)
             return
+        for weights in self.pathway_and_rest():
+            torch.nn.utils.clip_grad_norm_([w for w in weights if w.grad is not None], gradient_clip_val)
+
+    def pathway_and_rest(self) -> tuple[list[nn.Parameter], list[nn.Parameter]]:
+        """(``param_pathway()``, every other weight): each weight in exactly one."""
         pathway = self.param_pathway()
         in_pathway = {id(w) for w in pathway}
-        for weights in (pathway, [w for w in self.parameters() if id(w) not in in_pathway]):
-            torch.nn.utils.clip_grad_norm_([w for w in weights if w.grad is not None], gradient_clip_val)
+        return pathway, [w for w in self.parameters() if id(w) not in in_pathway]
 
     def configure_optimizers(self):
         """Adam at ``lr``; the parameter pathway at ``param_lr`` when set (Adam moves a weight by
         about its rate a step)."""
         if self.hparams.param_lr is None:
             return torch.optim.Adam(self.parameters(), lr=self.hparams.lr)
-        pathway = self.param_pathway()
-        in_pathway = {id(w) for w in pathway}
-        rest = [w for w in self.parameters() if id(w) not in in_pathway]
+        pathway, rest = self.pathway_and_rest()
         return torch.optim.Adam([{"params": rest}, {"params": pathway, "lr": self.hparams.param_lr}], lr=self.hparams.lr)
 
     def base_learning_rates(self) -> list[float]:
