@@ -31,7 +31,7 @@ from machine import describe  # noqa: E402
 import vgpl.nn.propagation as propagation  # noqa: E402
 
 VARIANTS = {"scatter": MessagePassing.aggregate, "index_add": propagation.Propagator.aggregate}
-WIDTHS = {"quick": 32, "standard": 150}
+PRESETS = ["quick", "standard"]
 
 
 def step_ms(step, steps: int) -> float:
@@ -45,14 +45,14 @@ def step_ms(step, steps: int) -> float:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--env", default="rigid_fall", choices=["rigid_fall", "fluid_cube", "mass_rope"])
-    parser.add_argument("--presets", nargs="+", default=["quick", "standard"], choices=list(WIDTHS))
+    parser.add_argument("--presets", nargs="+", default=["quick", "standard"], choices=PRESETS)
     parser.add_argument("--rounds", type=int, default=6)
     parser.add_argument("--steps", type=int, default=5)
     parser.add_argument("--threads", type=int, default=2)
     args = parser.parse_args()
     torch.set_num_threads(args.threads)
     for preset in args.presets:
-        _, model, window = setup(args.env, WIDTHS[preset], 2, preset)
+        _, model, window = setup(args.env, None, 2, preset)
         step = make_step(model, window, torch.device("cpu"), bf16=False)
         rounds = {name: [] for name in VARIANTS}
         for _ in range(args.rounds):
@@ -62,7 +62,7 @@ def main() -> None:
                 rounds[name].append(step_ms(step, args.steps))
         propagation.Propagator.aggregate = VARIANTS["index_add"]
         median = {name: statistics.median(ms) for name, ms in rounds.items()}
-        print(json.dumps({"benchmark": "aggregation", "env": args.env, "preset": preset, "width": WIDTHS[preset], "batch": 2, "precision": "32-true",
+        print(json.dumps({"benchmark": "aggregation", "env": args.env, "preset": preset, "width": model.hparams.width, "prior_width": model.dynamics.hparams.width, "batch": 2, "precision": "32-true",
                           "step_ms": {name: round(ms, 1) for name, ms in median.items()},
                           "rounds_ms": {name: [round(ms, 1) for ms in v] for name, v in rounds.items()},
                           "speedup": round(median["scatter"] / median["index_add"], 3),

@@ -44,10 +44,16 @@ def median_ms(fn, repeat: int) -> float:
     return round(timed(fn, repeat), 1)
 
 
-def setup(env: str, width: int, batch: int, preset: str):
-    """(config, module with its prior attached, one training batch) at the preset's settings."""
+def preset_config(env: str, preset: str):
+    """The composed config of ``experiment=<preset> env=<env>``."""
     with initialize_config_dir(str(CONF), version_base="1.3"):
-        cfg = compose("config", overrides=[f"experiment={preset}", f"env={env}"])
+        return compose("config", overrides=[f"experiment={preset}", f"env={env}"])
+
+
+def setup(env: str, width: int | None, batch: int, preset: str):
+    """(config, module with its prior attached, one training batch) at the preset's settings;
+    ``width`` both networks' width, or None for the preset's own (module and prior may differ)."""
+    cfg = preset_config(env, preset)
     scene = hydra.utils.instantiate(cfg.env.scene)
     spec = cfg.model.inference
     t, k = spec.observed, spec.net.horizon
@@ -55,11 +61,11 @@ def setup(env: str, width: int, batch: int, preset: str):
     pos, kinematic = traj.positions.float(), torch.as_tensor(scene.kinematic)
     rollouts = Rollouts(pos, traj.params.float(), traj.actions.float(), torch.as_tensor(scene.instance).long(), torch.as_tensor(scene.rigid),
                         torch.as_tensor(scene.param_low), torch.as_tensor(scene.param_high), scene.name)
-    net = {key: v for key, v in cfg.model.dynamics.net.items() if key != "_target_"} | {"width": width}
+    net = {key: v for key, v in cfg.model.dynamics.net.items() if key != "_target_"} | ({} if width is None else {"width": width})
     prior = DynamicsPrior(scene.param_low.tolist(), scene.param_high.tolist(), scene.n_instances, cfg.env.graph_radius, **net)
     prior.set_stats(NormStats.from_rollouts(rollouts, kinematic))
     torch.manual_seed(0)
-    model = hydra.utils.instantiate(spec.net, _convert_="all", width=width, param_low=scene.param_low.tolist(), param_high=scene.param_high.tolist(),
+    model = hydra.utils.instantiate(spec.net, _convert_="all", width=width or spec.net.width, param_low=scene.param_low.tolist(), param_high=scene.param_high.tolist(),
                                     n_particles=scene.n_particles, n_instances=scene.n_instances, radius=cfg.env.graph_radius, rigidness=True,
                                     instance_types=scene.instance_types)
     model.set_stats(prior)

@@ -3,8 +3,9 @@ threads (``task.modules_at_once``): training steps per second, from nothing, at 
 
     python benchmarks/modules_at_once.py --presets quick standard   # JSON lines on stdout
 
-A step is the module's loss, backward and Adam in fp32 on one window of engine-simulated rollouts
-(``inference_parts.setup``, ``inference_device.make_step``). "alone" runs one process with
+A step is the module's loss, backward and Adam on one window of engine-simulated rollouts
+(``inference_parts.setup``, ``inference_device.make_step``), at the preset's widths and at the
+precision the preset's modules train in on this machine (``--precision`` to choose another). "alone" runs one process with
 ``--threads`` threads for ``--seconds``; "side_by_side" two spawned processes with half the threads
 each, started together for the same seconds. ``gain`` is the pair's steps per second over the lone
 one's: what running the pipeline's two modules at once buys each of them in the same minutes.
@@ -23,20 +24,26 @@ import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # also in the spawned processes, which import this file
 from inference_device import make_step  # noqa: E402
-from inference_parts import setup  # noqa: E402
+from inference_parts import preset_config, setup  # noqa: E402
 from machine import describe  # noqa: E402
 
 from vgpl.tasks.at_once import threads_each  # noqa: E402
 
-WIDTHS = {"quick": 32, "standard": 150}
+PRESETS = ["quick", "standard"]
 
 
-def steps_per_second(env: str, preset: str, threads: int, seconds: float, start=None, results=None) -> float:
+def module_precision(cfg) -> str:
+    """The precision the config's inference module trains in (its stage's trainer, else the shared one), resolved."""
+    return str(cfg.model.inference.get("trainer", {}).get("precision", cfg.trainer.precision))
+
+
+def steps_per_second(env: str, preset: str, threads: int, seconds: float, precision: str | None = None, start=None, results=None) -> float:
     """Steps per second of the module's training step on ``threads`` threads over ``seconds`` (after
-    one warm-up step and, with ``start``, once every process is ready); also put on ``results``."""
+    one warm-up step and, with ``start``, once every process is ready); also put on ``results``.
+    ``precision`` "32-true" or "bf16-mixed"; None: the preset's on this machine."""
     torch.set_num_threads(threads)
-    _, model, window = setup(env, WIDTHS[preset], 2, preset)
-    step = make_step(model, window, torch.device("cpu"), bf16=False)
+    cfg, model, window = setup(env, None, 2, preset)
+    step = make_step(model, window, torch.device("cpu"), bf16="bf16" in (precision or module_precision(cfg)))
     step()
     if start is not None:
         start.wait()
@@ -50,11 +57,11 @@ def steps_per_second(env: str, preset: str, threads: int, seconds: float, start=
     return rate
 
 
-def side_by_side(env: str, preset: str, threads: int, seconds: float, jobs: int = 2) -> list[float]:
+def side_by_side(env: str, preset: str, threads: int, seconds: float, precision: str | None = None, jobs: int = 2) -> list[float]:
     """Each of ``jobs`` spawned processes' steps per second, all stepping at once."""
     context = multiprocessing.get_context("spawn")
     start, results = context.Barrier(jobs), context.Queue()
-    procs = [context.Process(target=steps_per_second, args=(env, preset, threads_each(threads, jobs), seconds, start, results)) for _ in range(jobs)]
+    procs = [context.Process(target=steps_per_second, args=(env, preset, threads_each(threads, jobs), seconds, precision, start, results)) for _ in range(jobs)]
     for p in procs:
         p.start()
     rates = [results.get() for _ in procs]
@@ -66,15 +73,18 @@ def side_by_side(env: str, preset: str, threads: int, seconds: float, jobs: int 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--env", default="rigid_fall", choices=["rigid_fall", "fluid_cube", "mass_rope"])
-    parser.add_argument("--presets", nargs="+", default=["quick"], choices=list(WIDTHS))
+    parser.add_argument("--presets", nargs="+", default=["quick"], choices=PRESETS)
     parser.add_argument("--threads", type=int, default=2)
     parser.add_argument("--seconds", type=float, default=40.0)
+    parser.add_argument("--precision", choices=["32-true", "bf16-mixed"], default=None, help="default: the preset's on this machine")
     args = parser.parse_args()
     for preset in args.presets:
-        alone = steps_per_second(args.env, preset, args.threads, args.seconds)
-        pair = side_by_side(args.env, preset, args.threads, args.seconds)
-        print(json.dumps({"benchmark": "modules_at_once", "env": args.env, "preset": preset, "width": WIDTHS[preset], "batch": 2,
-                          "precision": "32-true", "threads": args.threads, "seconds": args.seconds,
+        cfg = preset_config(args.env, preset)
+        precision = args.precision or module_precision(cfg)
+        alone = steps_per_second(args.env, preset, args.threads, args.seconds, precision)
+        pair = side_by_side(args.env, preset, args.threads, args.seconds, precision)
+        print(json.dumps({"benchmark": "modules_at_once", "env": args.env, "preset": preset, "width": cfg.model.inference.net.width,
+                          "prior_width": cfg.model.dynamics.net.width, "batch": 2, "precision": precision, "threads": args.threads, "seconds": args.seconds,
                           "steps_per_s": {"alone": round(alone, 2), "side_by_side": [round(r, 2) for r in pair]},
                           "gain": round(sum(pair) / alone, 3), "machine": describe()}), flush=True)
 

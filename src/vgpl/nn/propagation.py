@@ -31,6 +31,8 @@ def padded_linear(x: torch.Tensor, layer: nn.Module, width: int) -> torch.Tensor
     """``layer`` (torch's or torch-geometric's Linear, weight [out, in]) on x [..., K] (K >= in, the
     columns past in zero), its output padded with zero columns to ``width`` >= out: [..., width]."""
     out, into = layer.weight.shape
+    if x.shape[-1] == into and width == out:  # nothing to pad: the parameters themselves, which autocast casts once
+        return F.linear(x, layer.weight, layer.bias)
     weight = F.pad(layer.weight, (0, x.shape[-1] - into, 0, width - out))
     bias = None if layer.bias is None else F.pad(layer.bias, (0, width - out))
     return F.linear(x, weight, bias)
