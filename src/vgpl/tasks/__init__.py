@@ -22,6 +22,7 @@ TASKS: dict[str, str] = {
     "evaluate": "vgpl.tasks.evaluate:evaluate",
     "ground": "vgpl.tasks.ground:ground",
     "report": "vgpl.tasks.evaluate:report",
+    "compare": "vgpl.tasks.compare:compare",
     "free_fall_gravity": "vgpl.tasks.free_fall:free_fall_gravity",
     "pipeline": "vgpl.tasks.pipeline:pipeline",
 }

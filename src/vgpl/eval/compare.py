@@ -1,0 +1,71 @@
+"""Two or more evaluations of one test set, paired video by video: is one training recipe's module
+really better than another's? Each evaluation's metrics.json keeps every test video's parameter
+error (``PER_VIDEO_PARAM``) and future error at each horizon (``PER_VIDEO``, tables.py); this
+pairs them by rollout id and bootstraps the mean difference (vgpl.eval.paired), for the parameter
+MAE and every T+k both evaluations carry."""
+
+from __future__ import annotations
+
+import json
+import re
+from pathlib import Path
+
+import torch
+
+from vgpl.eval.paired import paired_bootstrap
+
+PER_VIDEO_PARAM = "per_video_param_mae_pct"  # record key: {rollout id (str): that video's parameter error, % of range, mean over parameters}
+_FUTURE = re.compile(r"^per_video_future_mse_x1e4@(\d+)$")
+
+
+def read_record(path: str | Path) -> dict:
+    """The metrics.json of a task=evaluate output folder (or the file itself); one ValueError names
+    the path and what is missing."""
+    path = Path(path)
+    file = path / "metrics.json" if path.is_dir() else path
+    if not file.is_file():
+        raise ValueError(f"{path}: no metrics.json (the output folder of a task=evaluate was expected)")
+    record = json.loads(file.read_text())
+    if PER_VIDEO_PARAM not in record:
+        raise ValueError(f"{file}: no per-video parameter errors ('{PER_VIDEO_PARAM}'): evaluated before they were kept; run task=evaluate again")
+    return record
+
+
+def compared_metrics(reference: dict, other: dict) -> list[tuple[str, str]]:
+    """(label, record key) of every per-video metric both records carry: the parameter MAE, then T+k in order."""
+    steps = sorted({int(m.group(1)) for r in (reference, other) for k in r if (m := _FUTURE.match(k))})
+    keys = [("parameter MAE %", PER_VIDEO_PARAM)] + [(f"T+{k} MSE x 1e4", f"per_video_future_mse_x1e4@{k}") for k in steps]
+    return [(label, key) for label, key in keys if key in reference and key in other]
+
+
+def paired_comparisons(reference: dict, others: dict[str, dict], reference_name: str = "reference") -> list[dict]:
+    """For each of ``others`` (name -> record) and each metric both carry (``compared_metrics``), on
+    the videos both evaluated: the two means, the mean difference (other - reference) with its 95%
+    bootstrap interval, the share of videos where the reference is lower, the sign test's p
+    (``paired_bootstrap``) and the verdict, "higher", "lower" or "not distinguishable" (the other's
+    mean against the reference's, by the interval). Records of another env, or with no video in
+    common, are refused."""
+    found = []
+    for name, other in others.items():
+        if other.get("env") != reference.get("env"):
+            raise ValueError(f"{name}: an evaluation on {other.get('env')!r}, the reference {reference_name} is on {reference.get('env')!r}")
+        for label, key in compared_metrics(reference, other):
+            ids = sorted(set(reference[key]) & set(other[key]), key=int)
+            if not ids:
+                raise ValueError(f"{name}: no test video in common with {reference_name} (compare evaluations of one test split)")
+            a, b = (torch.tensor([r[key][i] for i in ids], dtype=torch.float64) for r in (reference, other))
+            s = paired_bootstrap(a, b)
+            verdict = "higher" if s["low"] > 0 else "lower" if s["high"] < 0 else "not distinguishable"
+            found.append({"run": name, "metric": label, "key": key, "reference_mean": float(a.mean()), "run_mean": float(b.mean()), **s,
+                          "verdict": verdict})
+    return found
+
+
+def compare_rows(comparisons: list[dict], reference_name: str = "reference") -> tuple[list[str], list[list[str]]]:
+    """Header and rows of ``paired_comparisons``' results, one per run and metric."""
+    rows = [[c["run"], c["metric"], str(c["videos"]), f"{c['reference_mean']:.4g}", f"{c['run_mean']:.4g}",
+             f"{c['mean_diff']:+.3g} [{c['low']:+.3g}, {c['high']:+.3g}]", f"{100 * c['reference_lower_share']:.0f}% (p {c['sign_p']:.2g})",
+             c["verdict"]] for c in comparisons]
+    header = ["run", "metric", "videos", reference_name, "run's", f"run - {reference_name} [95% bootstrap]",
+              f"videos where {reference_name} is lower (sign test p)", "the run's is"]
+    return header, rows
