@@ -490,11 +490,13 @@ def test_blend_then_bernoulli_switches_at_its_step_and_the_checkpoint_keeps_it(t
             _modules(**bad)
 
 
-def test_training_on_proposals_reads_no_trajectory_and_rolls_against_the_proposals():
+@pytest.mark.parametrize("start", ["refined", "both"])
+def test_training_on_proposals_reads_no_trajectory_and_rolls_against_the_proposals(start):
     """rollout_target=proposals: with every non-actuated true position NaN, the loss is finite and
-    its gradient reaches dX, Q and P; it is the rollout error against the proposals' frames."""
+    its gradient reaches dX, Q and P; it is the rollout error against the proposals' frames (from
+    the refined start, and with ``both`` also from the proposals' own first frames)."""
     torch.manual_seed(0)
-    _, inf = _modules(rollout_target="proposals", refine_weight=0.0)
+    _, inf = _modules(rollout_target="proposals", refine_weight=0.0, trajectory_start=start)
     batch = _batch()
     batch["kinematic"][:, 0] = True  # an actuated particle: its true positions are the actions'
     batch["target_proposals"] = torch.cat([batch["proposals"], torch.rand(2, 2, 24, 3)], 1)
@@ -505,13 +507,15 @@ def test_training_on_proposals_reads_no_trajectory_and_rolls_against_the_proposa
     assert all(float(head.lins[-1].weight.grad.abs().sum()) > 0 for head in (inf.refine_head, inf.rigid_head, inf.param_head))
     # the same rollout loss as the trajectory-trained module's when the "truth" is the proposals
     torch.manual_seed(0)
-    _, twin = _modules(refine_weight=0.0)
+    _, twin = _modules(refine_weight=0.0, trajectory_start=start)
     twin.load_state_dict(inf.state_dict())
     twin_batch = dict(batch, positions=torch.where(batch["kinematic"][0][None, None, :, None], batch["positions"], batch["target_proposals"]))
-    assert float(twin._losses(twin_batch)["rollout"]) == pytest.approx(float(losses["rollout"]), rel=1e-6)
+    twin_losses = twin._losses(twin_batch)
+    for name in ("rollout", "rollout_from_truth") if start == "both" else ("rollout",):
+        assert float(twin_losses[name]) == pytest.approx(float(losses[name]), rel=1e-6)
 
 
-@pytest.mark.parametrize("setting", [{"refine_weight": 1.0}, {"param_weight": 1.0}, {"trajectory_start": "both", "refine_weight": 0.0}])
+@pytest.mark.parametrize("setting", [{"refine_weight": 1.0}, {"param_weight": 1.0}, {"training_scheme": "paper"}])
 def test_training_on_proposals_refuses_any_term_that_reads_the_trajectories(setting):
     with pytest.raises(ValueError, match="rollout_target='proposals' trains without the simulator's trajectories"):
         _modules(rollout_target="proposals", **{"refine_weight": 0.0, **setting})

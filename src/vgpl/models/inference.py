@@ -39,6 +39,7 @@ trajectories. ``proposals``: the visual prior's particles of the same frames, sl
 visual prior gives every particle its own slot in every frame), so the module trains on unlabelled
 videos; nothing then reads the trajectories but the logged metrics (it needs refine_weight 0 and
 param_weight 0; the actuated particles are placed by the actions, as the Grounder places them).
+The "true" start of ``trajectory_start`` truth / both is then the proposals' own first frames, unrefined.
 
 Nothing supervises Q or P directly unless ``param_weight`` > 0: ``rigid_correct/<type>`` and
 ``param_mae_pct`` are logged against the truth, never trained on.
@@ -167,10 +168,10 @@ class InferenceModule(AnnealedLearningRate, NormalisationBuffers, L.LightningMod
         if rollout_target not in ("truth", "proposals"):
             raise ValueError(f"InferenceModule: rollout_target={rollout_target!r}, expected 'truth' (the simulator's trajectories, the paper) "
                              "or 'proposals' (the visual prior's particles of the same frames: training without trajectories)")
-        if rollout_target == "proposals" and (training_scheme != "joint" or trajectory_start != "refined" or refine_weight != 0 or param_weight != 0):
+        if rollout_target == "proposals" and (training_scheme != "joint" or refine_weight != 0 or param_weight != 0):
             raise ValueError("InferenceModule: rollout_target='proposals' trains without the simulator's trajectories, so nothing may read them: "
-                             "it needs training_scheme='joint', trajectory_start='refined', refine_weight=0 and param_weight=0 (got "
-                             f"{training_scheme!r}, {trajectory_start!r}, {refine_weight}, {param_weight})")
+                             "it needs training_scheme='joint', refine_weight=0 and param_weight=0 (got "
+                             f"{training_scheme!r}, {refine_weight}, {param_weight})")
         for name, value in (("refined_steps", refined_steps), ("truth_steps", truth_steps)):
             if value is not None and value < 0:
                 raise ValueError(f"InferenceModule: {name}={value}, expected null (the window and horizon), 0 (no such run) or a number of frames")
