@@ -7,15 +7,14 @@ MAE and every T+k both evaluations carry."""
 from __future__ import annotations
 
 import json
-import re
 from pathlib import Path
 
 import torch
 
 from vgpl.eval.paired import paired_bootstrap
+from vgpl.eval.tables import PER_VIDEO, paired_steps
 
 PER_VIDEO_PARAM = "per_video_param_mae_pct"  # record key: {rollout id (str): that video's parameter error, % of range, mean over parameters}
-_FUTURE = re.compile(r"^per_video_future_mse_x1e4@(\d+)$")
 
 
 def read_record(path: str | Path) -> dict:
@@ -33,8 +32,7 @@ def read_record(path: str | Path) -> dict:
 
 def compared_metrics(reference: dict, other: dict) -> list[tuple[str, str]]:
     """(label, record key) of every per-video metric both records carry: the parameter MAE, then T+k in order."""
-    steps = sorted({int(m.group(1)) for r in (reference, other) for k in r if (m := _FUTURE.match(k))})
-    keys = [("parameter MAE %", PER_VIDEO_PARAM)] + [(f"T+{k} MSE x 1e4", f"per_video_future_mse_x1e4@{k}") for k in steps]
+    keys = [("parameter MAE %", PER_VIDEO_PARAM)] + [(f"T+{k} MSE x 1e4", PER_VIDEO.format(k)) for k in paired_steps([reference, other])]
     return [(label, key) for label, key in keys if key in reference and key in other]
 
 
