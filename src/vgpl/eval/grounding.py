@@ -26,6 +26,7 @@ class GroundingResult:
     truth: torch.Tensor | None = None  # [R, n_steps, N, 3]
     prediction: torch.Tensor | None = None  # [R, n_steps, N, 3]
     params: torch.Tensor | None = None  # [R, P] inferred (physical)
+    param_error: torch.Tensor | None = None  # [R] each video's parameter error, % of range, mean over parameters
     sources: dict = field(default_factory=dict)  # error_sources' result, where asked for
 
 
@@ -173,7 +174,7 @@ def evaluate_grounding(dynamics, visual, inference, scene, test: Rollouts, ablat
             if set(curve) != set(types) or any(len(v) != t_max for v in curve.values()):
                 lengths = {k: len(v) for k, v in curve.items()}
                 raise ValueError(f"the rigidness curve given has {lengths} values per type, expected {t_max} for each of {sorted(set(types))}")
-    return GroundingResult(metrics, curve, truth, pred, out["params"], sources)
+    return GroundingResult(metrics, curve, truth, pred, out["params"], err, sources)
 
 
 @torch.no_grad()
