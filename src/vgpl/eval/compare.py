@@ -9,9 +9,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-import torch
-
-from vgpl.eval.paired import paired_bootstrap
+from vgpl.eval.paired import paired_bootstrap, paired_values
 from vgpl.eval.tables import PER_VIDEO, paired_steps
 
 PER_VIDEO_PARAM = "per_video_param_mae_pct"  # record key: {rollout id (str): that video's parameter error, % of range, mean over parameters}
@@ -26,7 +24,7 @@ def read_record(path: str | Path) -> dict:
         raise ValueError(f"{path}: no metrics.json (the output folder of a task=evaluate was expected)")
     record = json.loads(file.read_text())
     if PER_VIDEO_PARAM not in record:
-        raise ValueError(f"{file}: no per-video parameter errors ('{PER_VIDEO_PARAM}'): evaluated before they were kept; run task=evaluate again")
+        raise ValueError(f"{file}: no per-video parameter errors ('{PER_VIDEO_PARAM}'): evaluated before they were kept (run task=evaluate again), or a DensePhysNet evaluation, which does not keep them")
     return record
 
 
@@ -48,10 +46,9 @@ def paired_comparisons(reference: dict, others: dict[str, dict], reference_name:
         if other.get("env") != reference.get("env"):
             raise ValueError(f"{name}: an evaluation on {other.get('env')!r}, the reference {reference_name} is on {reference.get('env')!r}")
         for label, key in compared_metrics(reference, other):
-            ids = sorted(set(reference[key]) & set(other[key]), key=int)
+            ids, a, b = paired_values(reference[key], other[key])
             if not ids:
                 raise ValueError(f"{name}: no test video in common with {reference_name} (compare evaluations of one test split)")
-            a, b = (torch.tensor([r[key][i] for i in ids], dtype=torch.float64) for r in (reference, other))
             s = paired_bootstrap(a, b)
             verdict = "higher" if s["low"] > 0 else "lower" if s["high"] < 0 else "not distinguishable"
             found.append({"run": name, "metric": label, "key": key, "reference_mean": float(a.mean()), "run_mean": float(b.mean()), **s,

@@ -22,6 +22,13 @@ def sign_test_p(diff: torch.Tensor) -> float:
     return min(1.0, 2 * sum(math.comb(n, i) for i in range(fewer + 1)) / 2**n)
 
 
+def paired_values(reference: dict, other: dict) -> tuple[list[str], torch.Tensor, torch.Tensor]:
+    """The rollout ids both per-video maps ({rollout id (str): value}) hold, in id order, and each
+    map's values at them [R] (empty when the two share no video)."""
+    ids = sorted(set(reference) & set(other), key=int)
+    return ids, torch.tensor([reference[i] for i in ids]), torch.tensor([other[i] for i in ids])
+
+
 def paired_bootstrap(reference: torch.Tensor, other: torch.Tensor, n_boot: int = 10000, level: float = 0.95, seed: int = 0) -> dict:
     """Mean of ``other - reference`` over paired videos [R], its percentile bootstrap interval at
     ``level``, the share of videos where ``reference`` is lower (ties count half) and that share's

@@ -11,7 +11,7 @@ from typing import NamedTuple
 
 import torch
 
-from vgpl.eval.paired import paired_bootstrap
+from vgpl.eval.paired import paired_bootstrap, paired_values
 from vgpl.eval.pooled import pool_runs, variant
 from vgpl.eval.rollout import FUTURE
 
@@ -110,10 +110,9 @@ def paired_rows(records: list[dict], step: int) -> tuple[list[str], list[list[st
         full = index.get(("vgpl", "full", env))
         for name in (row for row in TABLE2_ROWS if row != ("vgpl", "full")):  # each ablation, and the test-time fit
             other = index.get((*name, env))
-            ids = sorted(set(full[key]) & set(other[key]), key=int) if full and other else []
+            ids, a, b = paired_values(full[key], other[key]) if full and other else ([], None, None)
             if not ids:
                 continue
-            a, b = (torch.tensor([r[key][i] for i in ids]) for r in (full, other))
             s = paired_bootstrap(a, b)
             verdict = "lower" if s["low"] > 0 else "higher" if s["high"] < 0 else "not distinguishable"
             if verdict == "not distinguishable" and s["sign_p"] < 0.05:  # the mean ties; the typical video does not
