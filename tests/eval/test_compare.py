@@ -7,7 +7,7 @@ import json
 import pytest
 import torch
 
-from vgpl.eval.compare import PER_VIDEO_PARAM, compare_rows, paired_comparisons, read_record
+from vgpl.eval.compare import PER_VIDEO_PARAM, compare_rows, paired_comparisons, read_record, short_names
 
 
 def record(param_errors, t10, env="rigid_fall", ids=None) -> dict:
@@ -43,3 +43,9 @@ def test_other_envs_disjoint_videos_and_old_records_are_refused(tmp_path):
         read_record(tmp_path)
     with pytest.raises(ValueError, match="no metrics.json"):
         read_record(tmp_path / "missing")
+
+
+def test_runs_are_labelled_by_what_their_paths_do_not_share(tmp_path):
+    assert short_names(["/a/b/s1/eval", "/a/b/s2/eval", "/a/b/s2/eval_fit"]) == ["s1/eval", "s2/eval", "s2/eval_fit"]
+    assert short_names(["/a/b", "/a/b/c"]) == ["b", "c"]  # the shared folder itself keeps its name
+    assert short_names([str(tmp_path / "only")]) == ["only"]

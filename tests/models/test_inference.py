@@ -197,6 +197,25 @@ def test_the_tail_loss_rolls_from_the_last_refined_frames_where_the_evaluation_s
         _modules(tail_horizon=3)
 
 
+def test_in_the_paper_scheme_the_tail_trains_the_refinement_with_the_true_parameters():
+    """training_scheme="paper" with tail_horizon=k: the tail rolls the last h refined frames with the
+    true P, as the refinement network's other rollouts do, so it reaches dX and Q and never P."""
+    from vgpl.eval.rollout import rollout
+
+    torch.manual_seed(0)
+    dyn, inf = _modules(training_scheme="paper", one_step_windows=None, refined_steps=0, truth_steps=2, tail_horizon=2)
+    batch = _batch(labels=True)
+    losses = inf._losses(batch)
+    with torch.no_grad():
+        out = inf.infer(batch["proposals"], batch["logits"], batch["kinematic"][0])
+    truth, t, h = batch["positions"], batch["proposals"].shape[1], dyn.hparams.history
+    alone = rollout(dyn, torch.cat([out["positions"][:, t - h :], truth[:, t:]], 1), out["grouping"], out["rigidness"], batch["params"],
+                    batch["planes"][:, t - h :], batch["kinematic"][0], 2)
+    torch.testing.assert_close(losses["tail"].detach(), ((alone - truth[:, t:]) / dyn.disp_std).abs().mean(), rtol=1e-5, atol=1e-7)
+    grads = torch.autograd.grad(losses["tail"], [inf.refine_head.lins[-1].weight, *inf.param_pathway()], allow_unused=True)
+    assert grads[0].abs().sum() > 0 and all(g is None or not g.any() for g in grads[1:])
+
+
 @pytest.mark.parametrize("start", ["refined", "both"])
 def test_bernoulli_rigidness_learns_from_the_rollout_error_expected_over_each_label(start):
     """rigidness_estimator=bernoulli: the prior sees the label Q > 0.5; Q's loss is

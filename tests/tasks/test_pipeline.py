@@ -396,25 +396,34 @@ def test_grounding_a_test_video_from_its_frames_alone_gives_the_evaluations_numb
 
 
 def test_compare_pairs_two_evaluations_video_by_video_to_their_own_means(tiny, tmp_path):
-    """task=compare of the w/o-parameter evaluation against VGPL's: each video's parameter error
-    kept by task=evaluate averages to the record's MAE, and the paired means are the records' own."""
+    """task=compare of the w/o-parameter evaluation and DensePhysNet's against VGPL's: each video's
+    parameter error kept by task=evaluate averages to the record's MAE, the paired means are the
+    records' own, and the baseline, which predicts no future, is paired on its parameter alone."""
     from vgpl.tasks.compare import compare
 
     tmp, _ = tiny
-    full, no_params = (json.loads((tmp / f"run/evaluate/{a}/metrics.json").read_text()) for a in ("full", "no_params"))
-    for record in (full, no_params):
+    full, no_params, dpn = (json.loads((tmp / f"run/evaluate/{a}/metrics.json").read_text()) for a in ("full", "no_params", "densephysnet"))
+    for record in (full, no_params, dpn):
         per_video = record["per_video_param_mae_pct"]
         assert len(per_video) == record["n_test"] and sum(per_video.values()) / len(per_video) == pytest.approx(record["param_mae_pct"], rel=1e-5)
-    summary = compare(config(tmp, "task=compare", f"task.reference={tmp}/run/evaluate/full", f"task.others=[{tmp}/run/evaluate/no_params]",
-                             f"paths.output_dir={tmp_path}"))
-    found = {c["metric"]: c for c in json.loads((tmp_path / "compare.json").read_text())["comparisons"]}
-    assert summary["rows"] == len(found) == 4  # the parameter MAE, T+1, T+5, T+10 (eval.n_steps=10)
+    assert dpn["per_video_param_mae_pct"].keys() == full["per_video_param_mae_pct"].keys()
+    summary = compare(config(tmp, "task=compare", f"task.reference={tmp}/run/evaluate/full",
+                             f"task.others=[{tmp}/run/evaluate/no_params,{tmp}/run/evaluate/densephysnet]", f"paths.output_dir={tmp_path}"))
+    comparisons = json.loads((tmp_path / "compare.json").read_text())["comparisons"]
+    found = {c["metric"]: c for c in comparisons if c["run"] == "no_params"}
+    assert summary["rows"] == len(comparisons) == 5  # no_params: the parameter MAE, T+1, T+5, T+10 (eval.n_steps=10); DensePhysNet: the MAE
     param = found["parameter MAE %"]
     assert param["videos"] == full["n_test"] and param["reference_mean"] == pytest.approx(full["param_mae_pct"], rel=1e-5)
     assert param["mean_diff"] == pytest.approx(no_params["param_mae_pct"] - full["param_mae_pct"], rel=1e-4)
     assert param["low"] <= param["mean_diff"] <= param["high"]
     assert found["T+10 MSE x 1e4"]["run_mean"] == pytest.approx(no_params["future_mse_x1e4@10"], rel=1e-5)
-    assert "| " + str(tmp / "run/evaluate/no_params") + " | parameter MAE % |" in (tmp_path / "compare.md").read_text()
+    baseline = next(c for c in comparisons if c["run"] == "densephysnet")
+    assert baseline["metric"] == "parameter MAE %" and baseline["mean_diff"] == pytest.approx(dpn["param_mae_pct"] - full["param_mae_pct"], rel=1e-4)
+    text = (tmp_path / "compare.md").read_text()
+    assert "| no_params | parameter MAE % |" in text and f"- no_params: {tmp}/run/evaluate/no_params" in text  # labelled short, the paths listed
+    with pytest.raises(ValueError, match="each evaluation folder once"):
+        compare(config(tmp, "task=compare", f"task.reference={tmp}/run/evaluate/full", f"task.others=[{tmp}/run/evaluate/full]",
+                       f"paths.output_dir={tmp_path}/twice"))
 
 
 def test_a_test_time_fit_is_a_row_of_its_own_with_its_cost_per_video(tiny, tmp_path):

@@ -7,6 +7,7 @@ MAE and every T+k both evaluations carry."""
 from __future__ import annotations
 
 import json
+import os
 from pathlib import Path
 
 from vgpl.eval.paired import paired_bootstrap, paired_values
@@ -24,8 +25,17 @@ def read_record(path: str | Path) -> dict:
         raise ValueError(f"{path}: no metrics.json (the output folder of a task=evaluate was expected)")
     record = json.loads(file.read_text())
     if PER_VIDEO_PARAM not in record:
-        raise ValueError(f"{file}: no per-video parameter errors ('{PER_VIDEO_PARAM}'): evaluated before they were kept (run task=evaluate again), or a DensePhysNet evaluation, which does not keep them")
+        raise ValueError(f"{file}: no per-video parameter errors ('{PER_VIDEO_PARAM}'): evaluated before they were kept (run task=evaluate "
+                         "again, with model=densephysnet for the baseline)")
     return record
+
+
+def short_names(paths: list[str]) -> list[str]:
+    """Each path relative to the folder all of them share ('/a/s1/eval', '/a/s2/eval' -> 's1/eval',
+    's2/eval'): table labels that differ where the runs do. A path that is that folder keeps its name."""
+    resolved = [Path(p).resolve() for p in paths]
+    common = Path(os.path.commonpath(resolved)) if len(resolved) > 1 else resolved[0].parent
+    return [str(r.relative_to(common)) if r != common else r.name for r in resolved]
 
 
 def compared_metrics(reference: dict, other: dict) -> list[tuple[str, str]]:

@@ -379,7 +379,8 @@ class InferenceModule(AnnealedLearningRate, NormalisationBuffers, L.LightningMod
         kt = self.hparams.tail_horizon
         if kt > 0:
             target = truth[:, t : t + kt]
-            p_tail = p.detach() if self.hparams.tail_detach_params else p
+            # the paper's scheme: dX and Q roll with the true P here too; otherwise tail_detach_params keeps P out
+            p_tail = p_dx if paper else p.detach() if self.hparams.tail_detach_params else p
             future = rollout(dyn, torch.cat([x[:, t - h :], target], 1), g, q, p_tail, planes[:, t - h : t + kt], kinematic, kt)
             losses["tail"] = ((future - target) / scale).abs()[:, :, movable].mean()
         losses["refine"] = ((out["positions"] - batch["positions"][:, :t]) / scale).abs()[:, :, movable].mean()  # against the truth: logged; trained on with refine_weight

@@ -19,6 +19,7 @@ from vgpl.data.flow import flow_error
 from vgpl.data.flow_cache import CachedFlow, ensure_flow_cache
 from vgpl.data.flow_windows import FlowWindows
 from vgpl.data.trajectories import load_split
+from vgpl.eval.compare import PER_VIDEO_PARAM
 from vgpl.eval.linear_probe import Ridge
 from vgpl.eval.metrics import param_error_pct
 from vgpl.eval.tables import write_tables
@@ -131,7 +132,8 @@ def evaluate_baseline(cfg: DictConfig) -> dict:
     err = param_error_pct(pred, y, test.r.param_low, test.r.param_high).mean(1)
     record = {"env": scene.name, "method": "densephysnet", "ablation": "full", "n_test": len(test), "checkpoints": {"densephysnet": str(ckpt)},
               "param_mae_pct": float(err.mean()), "param_mae_pct_std": float(err.std()), "flow": test.flow,
-              **flow_quality(model, _windows(cfg, scene, videos, None, reference=True, split="test"))}
+              **flow_quality(model, _windows(cfg, scene, videos, None, reference=True, split="test")),
+              PER_VIDEO_PARAM: {str(int(i)): float(v) for i, v in zip(videos.rollout_ids, err, strict=True)}}  # one window a video: paired by task=compare
     out = Path(cfg.paths.output_dir)
     out.mkdir(parents=True, exist_ok=True)
     (out / "metrics.json").write_text(json.dumps(record, indent=1))

@@ -9,7 +9,7 @@ from pathlib import Path
 
 from omegaconf import DictConfig
 
-from vgpl.eval.compare import compare_rows, paired_comparisons, read_record
+from vgpl.eval.compare import compare_rows, paired_comparisons, read_record, short_names
 from vgpl.eval.tables import csv_text, markdown
 
 
@@ -17,14 +17,18 @@ def compare(cfg: DictConfig) -> dict:
     spec = cfg.task
     if spec.get("reference") in (None, "???") or spec.get("others") in (None, "???"):
         raise ValueError("task=compare needs task.reference=<a task=evaluate output folder> and task.others='[<folder>,...]'")
-    others = [spec.others] if isinstance(spec.others, str) else list(spec.others)
-    comparisons = paired_comparisons(read_record(spec.reference), {str(o): read_record(o) for o in others}, str(spec.reference))
-    header, rows = compare_rows(comparisons, str(spec.reference))
+    others = [str(o) for o in ([spec.others] if isinstance(spec.others, str) else spec.others)]
+    if len({str(spec.reference), *others}) <= len(others):
+        raise ValueError(f"task.reference={spec.reference}, task.others={others}: each evaluation folder once, expected")
+    reference, *names = short_names([str(spec.reference), *others])  # the table's labels; compare.json keeps the paths
+    comparisons = paired_comparisons(read_record(spec.reference), {n: read_record(o) for n, o in zip(names, others)}, reference)
+    header, rows = compare_rows(comparisons, reference)
     out = Path(cfg.paths.output_dir)
     out.mkdir(parents=True, exist_ok=True)
-    text = f"# Paired against {spec.reference}\n\n" + markdown(header, rows) + "\n"
+    where = "\n".join(f"- {n}: {p}" for n, p in zip([reference, *names], [str(spec.reference), *others]))
+    text = f"# Paired against {reference}\n\n{where}\n\n" + markdown(header, rows) + "\n"
     (out / "compare.md").write_text(text)
     (out / "compare.csv").write_text(csv_text(header, rows))
-    (out / "compare.json").write_text(json.dumps({"reference": str(spec.reference), "comparisons": comparisons}, indent=1))
+    (out / "compare.json").write_text(json.dumps({"reference": str(spec.reference), "paths": dict(zip(names, others)), "comparisons": comparisons}, indent=1))
     print(text)
     return {"compared": len(others), "rows": len(rows), "report": str(out / "compare.md")}
