@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 import torch
 
-from vgpl.eval.rollout import future_mse, rollout
+from vgpl.eval.rollout import future_mse, rollout, rollout_runs
 from vgpl.models.dynamics_prior import DynamicsPrior
 from vgpl.nn.rigid import momentum_projection, quaternion_to_matrix, rigid_displacement
 from vgpl.sim.envs import make_scene
@@ -176,6 +176,25 @@ def test_action_lookahead_shows_the_actuators_next_motion(env):
             shifted = model(hist, g, q, tr.params, moved_planes, kin, moved_next)
         changed = float((shifted - base)[:, ~kin].abs().max())
         assert (changed > 0.0) == lookahead, (lookahead, changed)  # exactly unchanged without it
+
+
+@pytest.mark.parametrize("env", ["fluid_cube", "mass_rope"])
+def test_runs_of_different_lengths_roll_together_as_each_alone(env):
+    """rollout_runs: runs of 1, 5 and 3 steps from different frames, with their own P and Q, rolled in
+    one batch (the container's planes and the pin's frames per run), predict what each run does alone."""
+    scene, tr, g, q, planes, kin = inputs(env, batch=2, steps=30)
+    h = 4
+    torch.manual_seed(0)
+    model = DynamicsPrior(scene.param_low.tolist(), scene.param_high.tolist(), scene.n_instances, radius=0.08, history=h,
+                          action_lookahead=True).eval()
+    runs = [(tr.positions[:, s : s + h + n], g, q * w, tr.params * (1 + 0.1 * w), planes[:, s : s + h + n], n)
+            for s, n, w in ((3, 1, 0.0), (0, 5, 1.0), (10, 3, 0.5))]
+    with torch.no_grad():
+        together = rollout_runs(model, runs, kin)
+        for (positions, g_, q_, p_, planes_, n), found in zip(runs, together):
+            assert found.shape == (2, n, scene.n_particles, 3)
+            torch.testing.assert_close(found, rollout(model, positions, g_, q_, p_, planes_, kin, n), rtol=1e-5, atol=1e-6)
+    assert not torch.allclose(together[0][:, 0], together[1][:, 0])  # the runs are not one rollout repeated
 
 
 def test_action_lookahead_needs_the_predicted_frame():

@@ -26,6 +26,42 @@ def rollout(model, positions, grouping, rigidness, params, planes, kinematic, n_
     return torch.stack(out, 1)
 
 
+def rollout_runs(model, runs: list[tuple], kinematic: torch.Tensor, history: int | None = None) -> list[torch.Tensor]:
+    """Several rollouts of different lengths as one batch: ``rollout`` of each run, in one call of
+    the model a step for all runs still rolling (a run of L steps takes part in the first L).
+
+    Args: runs, each (positions [B_i, H + L_i, N, 3] (the start and the frames that drive kinematic
+    particles, as ``rollout``), grouping [B_i, N, M], rigidness [B_i, M], params [B_i, P], planes
+    [B_i, H + L_i, K, 4], L_i >= 1); kinematic [N] bool.
+    Returns each run's predicted positions [B_i, L_i, N, 3], in the order given.
+    """
+    h = history or model.hparams.history
+    order = sorted(range(len(runs)), key=lambda i: -runs[i][5])  # longest first: the runs still rolling are a prefix
+    longest = runs[order[0]][5]
+
+    def padded(x: torch.Tensor, frames: int) -> torch.Tensor:  # the last frame repeated: frames no active run reads
+        return torch.cat([x, x[:, -1:].expand(-1, frames - x.shape[1], *x.shape[2:])], 1) if x.shape[1] < frames else x
+
+    positions = torch.cat([padded(runs[i][0], h + longest) for i in order])
+    grouping, rigidness, params = (torch.cat([runs[i][j] for i in order]) for j in (1, 2, 3))
+    planes = torch.cat([padded(runs[i][4], h + longest) for i in order])
+    lengths = torch.tensor([runs[i][5] for i in order for _ in range(runs[i][0].shape[0])])
+    window, out = positions[:, :h], []
+    for k in range(longest):
+        active = int((lengths > k).sum())
+        window = window[:active]
+        nxt = model.step(window, grouping[:active], rigidness[:active], params[:active], planes[:active, k : k + h + 1], kinematic,
+                         positions[:active, h + k])
+        out.append(nxt)
+        window = torch.cat([window[:, 1:], nxt[:, None]], 1)
+    found, first = [None] * len(runs), 0
+    for i in order:
+        b, length = runs[i][0].shape[0], runs[i][5]
+        found[i] = torch.stack([step[first : first + b] for step in out[:length]], 1)
+        first += b
+    return found
+
+
 def future_mse(pred: torch.Tensor, truth: torch.Tensor, horizons=(1, 5, 10, 20)) -> dict[str, float]:
     """Mean squared position error x 1e4 at each horizon (mean over scenes, particles and
     coordinates, as the paper's code: F.mse_loss). pred, truth [B, n_steps, N, 3]."""

@@ -56,7 +56,7 @@ from torch_geometric.nn import MLP
 
 from vgpl.data.vertical_symmetry import random_about_vertical
 from vgpl.eval.metrics import correct_rigidness_prob, mean_per_type
-from vgpl.eval.rollout import rollout
+from vgpl.eval.rollout import rollout, rollout_runs
 from vgpl.graph import edge_features, radius_graph
 from vgpl.models.step_learning_rate import AnnealedLearningRate
 from vgpl.nn.normalisation import NormalisationBuffers
@@ -325,64 +325,63 @@ class InferenceModule(AnnealedLearningRate, NormalisationBuffers, L.LightningMod
         scale = dyn.disp_std
         movable = ~kinematic
         losses = {}
+        # every rollout of the loss: name -> its runs, each (start + target frames, G, Q, P, planes, length). They all
+        # roll as one batch through the prior (rollout_runs: one call a step for the runs still rolling; scenes never
+        # share edges), and each loss is the L1 of its runs' predictions against the frames they roll into
+        pieces: dict[str, list[tuple]] = {}
+
+        def run(name: str, first: int, start: torch.Tensor, g_, q_, p_, length: int) -> None:
+            """A rollout of ``length`` frames from ``start`` (the h frames from ``first``) into truth[first + h:]."""
+            target = truth[:, first + h : first + h + length]
+            pieces.setdefault(name, []).append((torch.cat([start, target], 1), g_, q_, p_, planes[:, first : first + h + length], length))
+
         # one step from refined histories inside the observed window (the last few, or all T - h)
         k1 = self.hparams.one_step_windows
-        starts = list(range(t - h)) if k1 is None else list(range(t - h))[-k1:] if k1 > 0 else []
-        if starts:
-            hist = torch.cat([x[:, s : s + h] for s in starts])
-            pl = torch.cat([planes[:, s : s + h + 1] for s in starts])  # + the predicted frame (action)
-            target = torch.cat([truth[:, s + h] for s in starts])
-            n = len(starts)
-            pred = dyn.step(hist, tile_batch(g, n), tile_batch(q, n), tile_batch(p_dx, n), pl, kinematic, target)
-            losses["one_step"] = ((pred - target) / scale).abs()[:, movable].mean()
+        for s in list(range(t - h)) if k1 is None else list(range(t - h))[-k1:] if k1 > 0 else []:
+            run("one_step", s, x[:, s : s + h], g, q, p_dx, 1)
         # the trajectory: from the first h refined (or true) frames through the rest of the window
         # and k frames past it; a wrong parameter's error grows with every step, which makes P visible
         n_roll, mode = t - h + k, self.hparams.trajectory_start
+        trajectories = {}
         if n_roll > 0:
-            # each run: (start frames, G, Q, P) through the frozen prior. Runs of one length roll as one
-            # batch of n B scenes: one graph and one prior call a step (scenes never share edges)
             if paper:
                 # the paper's two networks, each with the true values of the other's outputs: dX and Q
                 # roll with the true P; P rolls from the true frames with the true G and Q
                 true_q = batch["rigid"].to(q) if self.hparams.rigidness else torch.zeros_like(q)
-                runs = {"rollout": (x[:, :h], g, q, p_dx), "rollout_from_truth": (truth[:, :h], batch["grouping"].to(g), true_q, p)}
+                trajectories = {"rollout": (x[:, :h], g, q, p_dx), "rollout_from_truth": (truth[:, :h], batch["grouping"].to(g), true_q, p)}
             else:
-                runs = {"refined": {"rollout": (x[:, :h], g, q, p)}, "truth": {"rollout_from_truth": (truth[:, :h], g, q, p)},
-                        "both": {"rollout": (x[:, :h], g, q, p.detach()), "rollout_from_truth": (truth[:, :h], g, q, p)}}[mode]
+                trajectories = {"refined": {"rollout": (x[:, :h], g, q, p)}, "truth": {"rollout_from_truth": (truth[:, :h], g, q, p)},
+                                "both": {"rollout": (x[:, :h], g, q, p.detach()), "rollout_from_truth": (truth[:, :h], g, q, p)}}[mode]
             # each run's length: refined_steps / truth_steps frames (null: the window and horizon; 0: no such run)
             steps = {"rollout": self.hparams.refined_steps, "rollout_from_truth": self.hparams.truth_steps}
-            steps = {name: n_roll if steps[name] is None else steps[name] for name in runs}
+            steps = {name: n_roll if steps[name] is None else steps[name] for name in trajectories}
             if max(steps.values()) > n_roll:
                 raise ValueError(f"InferenceModule: refined_steps={self.hparams.refined_steps}, truth_steps={self.hparams.truth_steps}: "
                                  f"a window holds {n_roll} frames after the prior's history (observed - history + horizon)")
-            for length in sorted({s for s in steps.values() if s > 0}):  # runs of one length roll as one batch
-                names = [name for name in runs if steps[name] == length]
-                n = len(names)
-                start, groupings, rigidities, params = (torch.cat(z) for z in zip(*(runs[name] for name in names)))
-                target = truth[:, h : h + length]
-                targets = tile_batch(target, n)
-                future = rollout(dyn, torch.cat([start, targets], 1), groupings, rigidities, params, tile_batch(planes, n), kinematic, length)
-                error = ((future - targets) / scale).abs()[:, :, movable]
-                for i, name in enumerate(names):  # "both": P learns from the true start only, dX through the refined one
-                    losses[name] = error[i * b : (i + 1) * b].mean()
-            if self.estimator == "bernoulli" and self.hparams.rigidness:
-                # Q's only loss: the label of each instance flipped on the trajectory that trains P. The
-                # bernoulli estimator keeps every run at n_roll (__init__), so the batch above holds them all
-                i = list(runs).index("rollout_from_truth") if "rollout_from_truth" in runs else 0
-                scenes = slice(i * b, (i + 1) * b)
-                flipped = self.flipped_label_errors(start[scenes], target, g, q, params[scenes].detach(), planes, kinematic, n_roll)
-                losses["rigidness"] = self.expected_rigidness_error(out["rigidness_prob"], q, error[scenes].mean((1, 2, 3)), flipped)
+            for name, inputs in trajectories.items():  # "both": P learns from the true start only, dX through the refined one
+                if steps[name] > 0:
+                    run(name, 0, *inputs, steps[name])
         # the evaluation rolls from the LAST h refined frames, which the trajectory above never
         # starts from (only the per-position L1 trains them): tail_horizon > 0 rolls from them past
-        # the window, so their motion is trained as the evaluation uses it; tail_detach_params keeps P
-        # out of it, as "both" keeps P out of the refined start (from noisy frames P can absorb start errors)
+        # the window, so their motion is trained as the evaluation uses it. In the paper's scheme it
+        # rolls with the true P, as dX's other rollouts; otherwise tail_detach_params keeps P out of
+        # it, as "both" keeps P out of the refined start (from noisy frames P can absorb start errors)
         kt = self.hparams.tail_horizon
         if kt > 0:
-            target = truth[:, t : t + kt]
-            # the paper's scheme: dX and Q roll with the true P here too; otherwise tail_detach_params keeps P out
-            p_tail = p_dx if paper else p.detach() if self.hparams.tail_detach_params else p
-            future = rollout(dyn, torch.cat([x[:, t - h :], target], 1), g, q, p_tail, planes[:, t - h : t + kt], kinematic, kt)
-            losses["tail"] = ((future - target) / scale).abs()[:, :, movable].mean()
+            run("tail", t - h, x[:, t - h :], g, q, p_dx if paper else p.detach() if self.hparams.tail_detach_params else p, kt)
+        flat = [(name, piece) for name, found in pieces.items() for piece in found]
+        errors: dict[str, list[torch.Tensor]] = {}
+        for (name, piece), pred in zip(flat, rollout_runs(dyn, [piece for _, piece in flat], kinematic) if flat else []):
+            errors.setdefault(name, []).append(((pred - piece[0][:, h:]) / scale).abs()[:, :, movable])  # [B, L, movable, 3]
+        for name, found in errors.items():  # runs of one loss have one length: the mean over all of them
+            losses[name] = torch.cat(found).mean()
+        if self.estimator == "bernoulli" and self.hparams.rigidness and trajectories:
+            # Q's only loss: the label of each instance flipped on the trajectory that trains P. The
+            # bernoulli estimator keeps every run at n_roll (__init__)
+            name = "rollout_from_truth" if "rollout_from_truth" in trajectories else next(iter(trajectories))
+            start, _, _, p_run = trajectories[name]
+            flipped = self.flipped_label_errors(start, truth[:, h : h + n_roll], g, q, p_run.detach(), planes, kinematic, n_roll)
+            losses["rigidness"] = self.expected_rigidness_error(out["rigidness_prob"], q, errors[name][0].mean((1, 2, 3)), flipped)
         losses["refine"] = ((out["positions"] - batch["positions"][:, :t]) / scale).abs()[:, :, movable].mean()  # against the truth: logged; trained on with refine_weight
         p_error = (out["params_normalised"] - self.normalise_params(batch["params"])).abs()
         losses["loss"] = (losses.get("one_step", 0.0) + losses.get("rollout", 0.0) + losses.get("rollout_from_truth", 0.0)
