@@ -22,7 +22,7 @@ the true frames (``truth_steps: 2``).
 
 Options beyond the paper (docs/paper.md, Departures; docs/configuration.md): ``tail_horizon`` k > 0
 adds an L1 of k frames rolled from the last ``history`` refined frames, where the evaluation starts
-(``tail_detach_params`` keeps P out of it); ``param_rotation`` shows the parameter encoder each
+(in the paper's scheme it trains dX alone; otherwise ``tail_detach_params`` keeps P out of it); ``param_rotation`` shows the parameter encoder each
 training scene turned about the vertical axis (RigidFall's symmetry); ``lr_anneal_steps`` anneals
 every rate to zero over the last K steps; ``param_weight`` > 0 adds a supervised L1 on P;
 ``proposal_noise`` s > 0 jitters every training proposal by a std drawn per window in [0, s] metres.
@@ -364,11 +364,13 @@ class InferenceModule(AnnealedLearningRate, NormalisationBuffers, L.LightningMod
         # the evaluation rolls from the LAST h refined frames, which the trajectory above never
         # starts from (only the per-position L1 trains them): tail_horizon > 0 rolls from them past
         # the window, so their motion is trained as the evaluation uses it. In the paper's scheme it
-        # rolls with the true P, as dX's other rollouts; otherwise tail_detach_params keeps P out of
-        # it, as "both" keeps P out of the refined start (from noisy frames P can absorb start errors)
+        # trains dX alone (the true P, Q detached), so Q and P learn as in the paper; otherwise
+        # tail_detach_params keeps P out of it, as "both" keeps P out of the refined start (from
+        # noisy frames P can absorb start errors)
         kt = self.hparams.tail_horizon
         if kt > 0:
-            run("tail", t - h, x[:, t - h :], g, q, p_dx if paper else p.detach() if self.hparams.tail_detach_params else p, kt)
+            q_tail, p_tail = (q.detach(), p_dx) if paper else (q, p.detach() if self.hparams.tail_detach_params else p)
+            run("tail", t - h, x[:, t - h :], g, q_tail, p_tail, kt)
         flat = [(name, piece) for name, found in pieces.items() for piece in found]
         errors: dict[str, list[torch.Tensor]] = {}
         for (name, piece), pred in zip(flat, rollout_runs(dyn, [piece for _, piece in flat], kinematic) if flat else []):
