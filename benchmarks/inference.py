@@ -9,8 +9,9 @@ proposals' radius graphs.
 A step is what Lightning runs: the module's loss (encoders, heads, the rollout through the frozen
 DynamicsPrior), backward and Adam, under bf16 autocast as the standard preset trains. Median over
 ``--repeat`` steps after two warm-ups. ``--preset`` times, instead of VARIANTS, the module as the
-prior's own run configured it (its saved config's ``model.inference``: for a standard prior the
-standard preset's two encoders, both starts and 5-frame tail, on its window span); ``--profile`` adds the operators that took
+prior's own run configured it (its saved config's ``model.inference``, every setting of its net: for
+a standard prior the standard preset's two encoders, both starts and 5-frame tail, on its window
+span), with ``--set key=value`` changing keys of that net (``--set tail_horizon=0``); ``--profile`` adds the operators that took
 the most of those steps' CPU time (torch.profiler, self time) to its JSON line; its step_ms then
 includes the profiler's overhead, so time without it. ``--compile`` wraps the message-passing parts
 of the prior and of both encoders in ``torch.compile(dynamic=True)`` (edge counts change every step):
@@ -29,6 +30,8 @@ from pathlib import Path
 
 import numpy as np
 import torch
+import yaml
+from omegaconf import OmegaConf
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from machine import describe  # noqa: E402
@@ -53,12 +56,13 @@ COMPILED = {  # --compile: the submodules of the prior and of each encoder that 
 
 def measure(dm: GroundingDataModule, dynamics: DynamicsPrior, scene, radius: float, batch: int, separate: bool,
             max_neighbors: int, repeat: int, trajectory_start: str = "refined", bf16: bool = True, tail_horizon: int = 0,
-            profile: int = 0, compile_parts: str = "none") -> dict:
-    """The median step; with ``profile`` > 0, also the ``profile`` operators of most self CPU time over the timed steps."""
+            profile: int = 0, compile_parts: str = "none", net: dict | None = None) -> dict:
+    """The median step; with ``profile`` > 0, also the ``profile`` operators of most self CPU time over the timed steps.
+    ``net``: the module's every setting (a run's ``model.inference.net``), instead of the ones named here."""
     torch.manual_seed(0)
-    model = InferenceModule(scene.param_low.tolist(), scene.param_high.tolist(), scene.n_particles, scene.n_instances, radius,
-                            separate_param_net=separate, max_neighbors=max_neighbors, trajectory_start=trajectory_start,
-                            tail_horizon=tail_horizon)
+    settings = net if net is not None else {"separate_param_net": separate, "max_neighbors": max_neighbors, "trajectory_start": trajectory_start,
+                                            "tail_horizon": tail_horizon}
+    model = InferenceModule(scene.param_low.tolist(), scene.param_high.tolist(), scene.n_particles, scene.n_instances, radius, **settings)
     model.set_stats(dynamics)
     model.attach_dynamics(dynamics)
     owners = [m for m in (dynamics, model.encoder, model.param_encoder) if m is not None]
@@ -84,8 +88,10 @@ def measure(dm: GroundingDataModule, dynamics: DynamicsPrior, scene, radius: flo
     with torch.profiler.profile(activities=[torch.profiler.ProfilerActivity.CPU]) if profile else contextlib.nullcontext() as prof:
         times = [step() for _ in range(repeat)]
     ms = float(np.median(times)) * 1e3
-    row = {"batch": batch, "separate_param_net": separate, "max_neighbors": max_neighbors, "trajectory_start": trajectory_start,
-           "tail_horizon": tail_horizon, "compile": compile_parts, "precision": "bf16-mixed" if bf16 else "32-true",
+    hp = model.hparams
+    row = {"batch": batch, "width": hp.width, "separate_param_net": hp.separate_param_net, "max_neighbors": hp.max_neighbors,
+           "trajectory_start": hp.trajectory_start, "training_scheme": hp.training_scheme, "tail_horizon": hp.tail_horizon,
+           "compile": compile_parts, "precision": "bf16-mixed" if bf16 else "32-true",
            "step_ms": round(ms, 1), "ms_per_window": round(ms / batch, 1)}
     if profile:
         ops = sorted(prof.key_averages(), key=lambda e: e.self_cpu_time_total, reverse=True)
@@ -110,22 +116,36 @@ def main() -> None:
     parser.add_argument("--compile", default="none", choices=list(COMPILED),
                         help="torch.compile(dynamic=True) these parts of the prior and the encoders (none: eager)")
     parser.add_argument("--profile", type=int, default=0, metavar="K", help="also record the K operators of most self CPU time (0: off)")
+    parser.add_argument("--set", nargs="*", default=[], metavar="KEY=VALUE",
+                        help="with --preset: change these keys of the run's model.inference.net (e.g. tail_horizon=0 horizon=0)")
     args = parser.parse_args()
+    if args.set and not args.preset:
+        parser.error("--set changes the run's model.inference.net: it needs --preset")
     torch.set_num_threads(args.threads)
     dynamics, cfg = load_stage(args.dynamics, DynamicsPrior)
     scene = scene_of(cfg)
     preset = cfg.model.inference
-    dm = GroundingDataModule(args.data, scene, 10, 5, 2, cfg.env.get("start_frame", 0), 1, preset.window_span if args.preset else args.window_span)
+    net = None
+    if args.preset:  # the run's module, every setting, with --set's changes
+        net = {key: value for key, value in OmegaConf.to_container(preset.net, resolve=True).items() if key != "_target_"}
+        for item in args.set:
+            key, _, value = item.partition("=")
+            if key not in net:
+                parser.error(f"--set {item}: model.inference.net has no key {key!r} (keys: {', '.join(sorted(net))})")
+            net[key] = yaml.safe_load(value)
+    horizon = net["horizon"] if net is not None else 5
+    dm = GroundingDataModule(args.data, scene, 10, horizon, 2, cfg.env.get("start_frame", 0), 1, preset.window_span if args.preset else args.window_span)
     dm.setup()
     machine = describe()
     radius = float(cfg.env.graph_radius)
-    runs = [(preset.batch_size, preset.net.separate_param_net, preset.net.max_neighbors, preset.net.trajectory_start,
-             preset.net.tail_horizon)] if args.preset else [
+    runs = [(preset.batch_size, None, None, None, None)] if args.preset else [
         (batch, separate, neighbors, args.trajectory_start, 0) for i, (batch, separate, neighbors) in enumerate(VARIANTS)
         if not args.variants or i in args.variants]
     for batch, separate, neighbors, start, tail in runs:
-        row = measure(dm, dynamics, scene, radius, batch, separate, neighbors, args.repeat, start, not args.fp32, tail, args.profile, args.compile)
-        print(json.dumps({"benchmark": "inference_train_step", "env": scene.name, **row, "machine": machine}), flush=True)
+        row = measure(dm, dynamics, scene, radius, batch, separate, neighbors, args.repeat, start, not args.fp32, tail or 0, args.profile,
+                      args.compile, net)
+        extra = {"set": args.set} if args.set else {}
+        print(json.dumps({"benchmark": "inference_train_step", "env": scene.name, **row, **extra, "machine": machine}), flush=True)
 
 
 if __name__ == "__main__":
