@@ -46,6 +46,6 @@ def test_other_envs_disjoint_videos_and_old_records_are_refused(tmp_path):
 
 
 def test_runs_are_labelled_by_what_their_paths_do_not_share(tmp_path):
-    assert short_names(["/a/b/s1/eval", "/a/b/s2/eval", "/a/b/s2/eval_fit"]) == ["s1/eval", "s2/eval", "s2/eval_fit"]
+    assert short_names(["/a/b/paper/eval", "/a/b/joint/eval", "/a/b/joint/eval_fit"]) == ["paper/eval", "joint/eval", "joint/eval_fit"]
     assert short_names(["/a/b", "/a/b/c"]) == ["b", "c"]  # the shared folder itself keeps its name
     assert short_names([str(tmp_path / "only")]) == ["only"]

@@ -31,8 +31,8 @@ def read_record(path: str | Path) -> dict:
 
 
 def short_names(paths: list[str]) -> list[str]:
-    """Each path relative to the folder all of them share ('/a/s1/eval', '/a/s2/eval' -> 's1/eval',
-    's2/eval'): table labels that differ where the runs do. A path that is that folder keeps its name."""
+    """Each path relative to the folder all of them share ('/a/paper/eval', '/a/joint/eval' ->
+    'paper/eval', 'joint/eval'): table labels that differ where the runs do. A path that is that folder keeps its name."""
     resolved = [Path(p).resolve() for p in paths]
     common = Path(os.path.commonpath(resolved)) if len(resolved) > 1 else resolved[0].parent
     return [str(r.relative_to(common)) if r != common else r.name for r in resolved]
