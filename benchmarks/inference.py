@@ -54,14 +54,12 @@ COMPILED = {  # --compile: the submodules of the prior and of each encoder that 
 }
 
 
-def measure(dm: GroundingDataModule, dynamics: DynamicsPrior, scene, radius: float, batch: int, separate: bool,
-            max_neighbors: int, repeat: int, trajectory_start: str = "refined", bf16: bool = True, tail_horizon: int = 0,
-            profile: int = 0, compile_parts: str = "none", net: dict | None = None) -> dict:
-    """The median step; with ``profile`` > 0, also the ``profile`` operators of most self CPU time over the timed steps.
-    ``net``: the module's every setting (a run's ``model.inference.net``), instead of the ones named here."""
+def measure(dm: GroundingDataModule, dynamics: DynamicsPrior, scene, radius: float, batch: int, settings: dict, repeat: int,
+            bf16: bool = True, profile: int = 0, compile_parts: str = "none") -> dict:
+    """The median step of the module built with ``settings`` (InferenceModule's keywords: a VARIANTS
+    row's, or a run's whole ``model.inference.net``); with ``profile`` > 0, also the ``profile``
+    operators of most self CPU time over the timed steps."""
     torch.manual_seed(0)
-    settings = net if net is not None else {"separate_param_net": separate, "max_neighbors": max_neighbors, "trajectory_start": trajectory_start,
-                                            "tail_horizon": tail_horizon}
     model = InferenceModule(scene.param_low.tolist(), scene.param_high.tolist(), scene.n_particles, scene.n_instances, radius, **settings)
     model.set_stats(dynamics)
     model.attach_dynamics(dynamics)
@@ -138,12 +136,11 @@ def main() -> None:
     dm.setup()
     machine = describe()
     radius = float(cfg.env.graph_radius)
-    runs = [(preset.batch_size, None, None, None, None)] if args.preset else [
-        (batch, separate, neighbors, args.trajectory_start, 0) for i, (batch, separate, neighbors) in enumerate(VARIANTS)
-        if not args.variants or i in args.variants]
-    for batch, separate, neighbors, start, tail in runs:
-        row = measure(dm, dynamics, scene, radius, batch, separate, neighbors, args.repeat, start, not args.fp32, tail or 0, args.profile,
-                      args.compile, net)
+    runs = [(preset.batch_size, net)] if args.preset else [
+        (batch, {"separate_param_net": separate, "max_neighbors": neighbors, "trajectory_start": args.trajectory_start})
+        for i, (batch, separate, neighbors) in enumerate(VARIANTS) if not args.variants or i in args.variants]
+    for batch, settings in runs:
+        row = measure(dm, dynamics, scene, radius, batch, settings, args.repeat, not args.fp32, args.profile, args.compile)
         extra = {"set": args.set} if args.set else {}
         print(json.dumps({"benchmark": "inference_train_step", "env": scene.name, **row, **extra, "machine": machine}), flush=True)
 

@@ -22,6 +22,12 @@ def sign_test_p(diff: torch.Tensor) -> float:
     return min(1.0, 2 * sum(math.comb(n, i) for i in range(fewer + 1)) / 2**n)
 
 
+def per_video_map(rollout_ids, values) -> dict[str, float]:
+    """{rollout id (str): value}, one entry a video, as a record keeps it for ``paired_values``.
+    rollout_ids [R], values [R]; refused when their lengths differ."""
+    return {str(int(i)): float(v) for i, v in zip(rollout_ids, values, strict=True)}
+
+
 def paired_values(reference: dict, other: dict) -> tuple[list[str], torch.Tensor, torch.Tensor]:
     """The rollout ids both per-video maps ({rollout id (str): value}) hold, in id order, and each
     map's values at them [R] (empty when the two share no video)."""

@@ -22,6 +22,7 @@ from vgpl.data.trajectories import load_split
 from vgpl.eval.compare import PER_VIDEO_PARAM
 from vgpl.eval.linear_probe import Ridge
 from vgpl.eval.metrics import param_error_pct
+from vgpl.eval.paired import per_video_map
 from vgpl.eval.tables import write_tables
 from vgpl.models.densephysnet import DensePhysNet
 from vgpl.tasks.stage import fit, setup_run, stage_checkpoint, stopping
@@ -133,7 +134,7 @@ def evaluate_baseline(cfg: DictConfig) -> dict:
     record = {"env": scene.name, "method": "densephysnet", "ablation": "full", "n_test": len(test), "checkpoints": {"densephysnet": str(ckpt)},
               "param_mae_pct": float(err.mean()), "param_mae_pct_std": float(err.std()), "flow": test.flow,
               **flow_quality(model, _windows(cfg, scene, videos, None, reference=True, split="test")),
-              PER_VIDEO_PARAM: {str(int(i)): float(v) for i, v in zip(videos.rollout_ids, err, strict=True)}}  # one window a video: paired by task=compare
+              PER_VIDEO_PARAM: per_video_map(videos.rollout_ids, err)}  # one window a video: paired by task=compare
     out = Path(cfg.paths.output_dir)
     out.mkdir(parents=True, exist_ok=True)
     (out / "metrics.json").write_text(json.dumps(record, indent=1))

@@ -29,6 +29,7 @@ from vgpl.eval.compare import PER_VIDEO_PARAM
 from vgpl.eval.error_breakdown import error_breakdown, rollout_mse_x1e4
 from vgpl.eval.error_sources import error_sources_rows
 from vgpl.eval.grounding import evaluate_grounding, proposed_frames
+from vgpl.eval.paired import per_video_map
 from vgpl.eval.preview import write_gif
 from vgpl.eval.rollout import FUTURE
 from vgpl.eval.tables import HORIZONS, PER_VIDEO, csv_text, markdown, param_rows, write_tables
@@ -118,11 +119,11 @@ def evaluate(cfg: DictConfig) -> dict:
     names = list(scene.param_names)
     record[f"breakdown@{last}"] = error_breakdown(result.prediction, result.truth, torch.as_tensor(scene.instance), torch.cat([test.params, result.params], 1),
                                                   last, names + [f"inferred_{n}" for n in names])
-    record[PER_VIDEO_PARAM] = {str(int(i)): float(v) for i, v in zip(test.rollout_ids, result.param_error)}  # paired by task=compare
+    record[PER_VIDEO_PARAM] = per_video_map(test.rollout_ids, result.param_error)  # paired by task=compare
     errors = {}  # T+k -> [R], each video's error at Table 2's horizons (and the last), for params.csv and the paired tables
     for step in sorted({k for k in HORIZONS if k <= last} | {last}):
         errors[step] = rollout_mse_x1e4(result.prediction, result.truth, step)
-        record[PER_VIDEO.format(step)] = {str(int(i)): float(v) for i, v in zip(test.rollout_ids, errors[step])}
+        record[PER_VIDEO.format(step)] = per_video_map(test.rollout_ids, errors[step])
     out = Path(cfg.paths.output_dir)
     out.mkdir(parents=True, exist_ok=True)
     (out / "metrics.json").write_text(json.dumps(record, indent=1))
