@@ -183,27 +183,35 @@ def test_the_tail_loss_rolls_from_the_last_refined_frames_where_the_evaluation_s
                     batch["planes"][:, t - h :], batch["kinematic"][0], 2)
     torch.testing.assert_close(losses["tail"].detach(), ((alone - truth[:, t:]) / dyn.disp_std).abs().mean(), rtol=1e-5, atol=1e-7)
     torch.testing.assert_close(losses["loss"], losses["rollout"] + losses["tail"] + losses["refine"])
-    refine_grad, param_grad = torch.autograd.grad(losses["tail"], [inf.refine_head.lins[-1].weight, inf.param_head.lins[-1].weight])
-    assert refine_grad.abs().sum() > 0 and param_grad.abs().sum() > 0  # it trains the refinement, and P by default
-    detached = InferenceModule(**{**inf.hparams, "tail_detach_params": True})  # the same weights and prior
-    detached.load_state_dict(inf.state_dict())
-    detached.attach_dynamics(dyn)
-    d_losses = detached._losses(batch)
-    torch.testing.assert_close(d_losses["tail"], losses["tail"])  # the same loss ...
-    tail_grads = torch.autograd.grad(d_losses["tail"], [detached.refine_head.lins[-1].weight, detached.param_head.lins[-1].weight], allow_unused=True)
-    assert tail_grads[0].abs().sum() > 0 and (tail_grads[1] is None or not tail_grads[1].any())  # ... with no gradient on P
+    heads = lambda module: [module.refine_head.lins[-1].weight, module.rigid_head.lins[-1].weight, module.param_head.lins[-1].weight]  # noqa: E731
+    grads = torch.autograd.grad(losses["tail"], heads(inf))
+    assert all(g.abs().sum() > 0 for g in grads)  # by default it trains the refinement, Q and P
+    for detach, trained in (({"tail_detach_params": True}, [True, True, False]), ({"tail_detach_rigidness": True}, [True, False, True]),
+                            ({"tail_detach_params": True, "tail_detach_rigidness": True}, [True, False, False])):
+        detached = InferenceModule(**{**inf.hparams, **detach})  # the same weights and prior
+        detached.load_state_dict(inf.state_dict())
+        detached.attach_dynamics(dyn)
+        d_losses = detached._losses(batch)
+        torch.testing.assert_close(d_losses["tail"], losses["tail"])  # the same loss ...
+        grads = torch.autograd.grad(d_losses["tail"], heads(detached), allow_unused=True)
+        assert [g is not None and bool(g.any()) for g in grads] == trained, detach  # ... with no gradient on what is detached
     assert "tail" not in _modules()[1]._losses(batch)  # off by default (the paper)
     with pytest.raises(ValueError, match="tail_horizon=3, expected 0 \\(off\\) to horizon=2"):
         _modules(tail_horizon=3)
 
 
-def test_in_the_paper_scheme_the_tail_trains_the_refinement_alone():
+def test_in_the_paper_scheme_the_tail_rolls_with_the_true_parameters():
     """training_scheme="paper" with tail_horizon=k: the tail rolls the last h refined frames with the
-    true P and the module's Q, and its gradient reaches dX alone: Q and P learn as in the paper."""
+    true P and the module's Q, so its gradient never reaches P; with tail_detach_rigidness (the quick
+    preset's) it reaches dX alone, and Q and P learn as in the paper."""
     from vgpl.eval.rollout import rollout
 
     torch.manual_seed(0)
     dyn, inf = _modules(training_scheme="paper", one_step_windows=None, refined_steps=0, truth_steps=2, tail_horizon=2)
+    q_grad, *p_grads = torch.autograd.grad(inf._losses(_batch(labels=True))["tail"], [inf.rigid_head.lins[-1].weight, *inf.param_pathway()],
+                                           allow_unused=True)
+    assert q_grad.abs().sum() > 0 and all(g is None or not g.any() for g in p_grads)  # Q, not P
+    dyn, inf = _modules(training_scheme="paper", one_step_windows=None, refined_steps=0, truth_steps=2, tail_horizon=2, tail_detach_rigidness=True)
     batch = _batch(labels=True)
     losses = inf._losses(batch)
     with torch.no_grad():

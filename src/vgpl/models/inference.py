@@ -21,8 +21,9 @@ refined history of the window (``one_step_windows: null, refined_steps: 0``) and
 the true frames (``truth_steps: 2``).
 
 Options beyond the paper (docs/paper.md, Departures; docs/configuration.md): ``tail_horizon`` k > 0
-adds an L1 of k frames rolled from the last ``history`` refined frames, where the evaluation starts
-(in the paper's scheme it trains dX alone; otherwise ``tail_detach_params`` keeps P out of it); ``param_rotation`` shows the parameter encoder each
+adds an L1 of k frames rolled from the last ``history`` refined frames, where the evaluation starts;
+``tail_detach_rigidness`` keeps Q out of it and ``tail_detach_params`` P (in the paper's scheme it rolls
+with the true P); ``param_rotation`` shows the parameter encoder each
 training scene turned about the vertical axis (RigidFall's symmetry); ``lr_anneal_steps`` anneals
 every rate to zero over the last K steps; ``param_weight`` > 0 adds a supervised L1 on P;
 ``proposal_noise`` s > 0 jitters every training proposal by a std drawn per window in [0, s] metres.
@@ -141,6 +142,7 @@ class InferenceModule(AnnealedLearningRate, NormalisationBuffers, L.LightningMod
         param_lr: float | None = None,
         tail_horizon: int = 0,
         tail_detach_params: bool = False,
+        tail_detach_rigidness: bool = False,
         lr_anneal_steps: int = 0,
         param_rotation: bool = False,
         instance_types: list[str] | None = None,
@@ -363,13 +365,13 @@ class InferenceModule(AnnealedLearningRate, NormalisationBuffers, L.LightningMod
                     run(name, 0, *inputs, steps[name])
         # the evaluation rolls from the LAST h refined frames, which the trajectory above never
         # starts from (only the per-position L1 trains them): tail_horizon > 0 rolls from them past
-        # the window, so their motion is trained as the evaluation uses it. In the paper's scheme it
-        # trains dX alone (the true P, Q detached), so Q and P learn as in the paper; otherwise
-        # tail_detach_params keeps P out of it, as "both" keeps P out of the refined start (from
-        # noisy frames P can absorb start errors)
+        # the window, so their motion is trained as the evaluation uses it. tail_detach_rigidness and
+        # tail_detach_params keep Q and P out of it, as "both" keeps P out of the refined start: from
+        # noisy frames, Q and P can absorb the start's errors (in the paper's scheme P is the true one)
         kt = self.hparams.tail_horizon
         if kt > 0:
-            q_tail, p_tail = (q.detach(), p_dx) if paper else (q, p.detach() if self.hparams.tail_detach_params else p)
+            q_tail = q.detach() if self.hparams.tail_detach_rigidness else q
+            p_tail = p_dx.detach() if self.hparams.tail_detach_params else p_dx
             run("tail", t - h, x[:, t - h :], g, q_tail, p_tail, kt)
         flat = [(name, piece) for name, found in pieces.items() for piece in found]
         errors: dict[str, list[torch.Tensor]] = {}
