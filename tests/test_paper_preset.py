@@ -14,6 +14,7 @@ from tests.conftest import REPO
 
 ENVS = ("rigid_fall", "fluid_cube", "mass_rope")
 PAPER = (REPO / "docs" / "paper.md").read_text()
+CONFIG_KEY = r"`((?:model|trainer|env|task)\.[\w.]+)`"  # a backticked config key in a departure's key cell
 
 
 def table(name: str) -> list[dict[str, str]]:
@@ -43,7 +44,7 @@ def test_the_tables_are_read_whole():
     recipe, departures = table("paper-recipe"), table("departures")
     assert len(recipe) >= 30 and len(departures) >= 15
     assert all(row["source"].startswith(("paper:", "code:", "paper and code:")) for row in recipe)
-    assert all(re.search(r"`(model|trainer|env|task)\.[\w.]+`", row["key"]) for row in departures)
+    assert all(re.search(CONFIG_KEY, row["key"]) for row in departures)
 
 
 @pytest.mark.parametrize("env", ENVS)
@@ -62,7 +63,7 @@ def test_every_recipe_value_is_the_papers(paper_configs, env):
 def test_every_departure_is_off_in_the_paper_preset(paper_configs, env):
     cfg = paper_configs[env]
     for row in table("departures"):
-        for key in re.findall(r"`((?:model|trainer|env|task)\.[\w.]+)`", row["key"]):
+        for key in re.findall(CONFIG_KEY, row["key"]):
             try:
                 got = value(cfg, key)
             except KeyError:  # a key of another env's scene (start_stretch: MassRope's)
@@ -80,7 +81,7 @@ def test_each_departure_is_on_in_some_preset_or_default(monkeypatch):
     with initialize_config_dir(config_dir=str(REPO / "conf"), version_base="1.3"):
         configs = [compose("config", overrides=[f"env={env}", f"experiment={preset}"]) for env in ENVS for preset in ("quick", "standard")]
     for row in table("departures"):
-        key = re.findall(r"`((?:model|trainer|env|task)\.[\w.]+)`", row["key"])[0]
+        key = re.findall(CONFIG_KEY, row["key"])[0]
         paper = yaml.safe_load(row["paper value"])
         seen = [value(cfg, key) for cfg in configs if OmegaConf.select(cfg, key, default=KeyError) is not KeyError]
         assert any(v != paper for v in seen), f"no preset departs in '{row['departure']}' ({key}): drop the row"

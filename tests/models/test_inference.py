@@ -207,11 +207,12 @@ def test_in_the_paper_scheme_the_tail_rolls_with_the_true_parameters():
     from vgpl.eval.rollout import rollout
 
     torch.manual_seed(0)
-    dyn, inf = _modules(training_scheme="paper", one_step_windows=None, refined_steps=0, truth_steps=2, tail_horizon=2)
+    paper = {"training_scheme": "paper", "one_step_windows": None, "refined_steps": 0, "truth_steps": 2, "tail_horizon": 2}
+    dyn, inf = _modules(**paper)
     q_grad, *p_grads = torch.autograd.grad(inf._losses(_batch(labels=True))["tail"], [inf.rigid_head.lins[-1].weight, *inf.param_pathway()],
                                            allow_unused=True)
     assert q_grad.abs().sum() > 0 and all(g is None or not g.any() for g in p_grads)  # Q, not P
-    dyn, inf = _modules(training_scheme="paper", one_step_windows=None, refined_steps=0, truth_steps=2, tail_horizon=2, tail_detach_rigidness=True)
+    dyn, inf = _modules(**paper, tail_detach_rigidness=True)
     batch = _batch(labels=True)
     losses = inf._losses(batch)
     with torch.no_grad():
