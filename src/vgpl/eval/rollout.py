@@ -10,32 +10,29 @@ FUTURE = "future_mse_x1e4@{}"  # metric key: the mean squared position error x 1
 def rollout(model, positions, grouping, rigidness, params, planes, kinematic, n_steps: int, history: int | None = None) -> torch.Tensor:
     """Roll the model forward from the first ``history`` frames of ``positions``.
 
-    Args: positions [B, >= H(+n_steps for kinematic parts), N, 3] (frames after the history are
-    used only to drive kinematic particles); grouping [B, N, M]; rigidness [B, M]; params [B, P];
+    Args: positions [B, >= H(+n_steps with kinematic particles), N, 3] (frames after the history
+    only drive the kinematic particles); grouping [B, N, M]; rigidness [B, M]; params [B, P];
     planes [B, H + n_steps, K, 4]; kinematic [N] bool.
     Returns: predicted positions [B, n_steps, N, 3].
     """
-    h = history or model.hparams.history
-    window = positions[:, :h]
-    out = []
-    for k in range(n_steps):
-        driven = positions[:, h + k] if positions.shape[1] > h + k else None
-        nxt = model.step(window, grouping, rigidness, params, planes[:, k : k + h + 1], kinematic, driven)
-        out.append(nxt)
-        window = torch.cat([window[:, 1:], nxt[:, None]], 1)
-    return torch.stack(out, 1)
+    return rollout_runs(model, [(positions, grouping, rigidness, params, planes, n_steps)], kinematic, history)[0]
 
 
 def rollout_runs(model, runs: list[tuple], kinematic: torch.Tensor, history: int | None = None) -> list[torch.Tensor]:
     """Several rollouts of different lengths as one batch: ``rollout`` of each run, in one call of
     the model a step for all runs still rolling (a run of L steps takes part in the first L).
 
-    Args: runs, each (positions [B_i, H + L_i, N, 3] (the start and the frames that drive kinematic
-    particles, as ``rollout``), grouping [B_i, N, M], rigidness [B_i, M], params [B_i, P], planes
-    [B_i, H + L_i, K, 4], L_i >= 1); kinematic [N] bool.
+    Args: runs, each (positions [B_i, H(+L_i with kinematic particles), N, 3] (the start and the
+    frames that drive kinematic particles), grouping [B_i, N, M], rigidness [B_i, M], params
+    [B_i, P], planes [B_i, H + L_i, K, 4], L_i >= 1); kinematic [N] bool.
     Returns each run's predicted positions [B_i, L_i, N, 3], in the order given.
     """
     h = history or model.hparams.history
+    for i, (positions, *_, planes, length) in enumerate(runs):
+        if planes.shape[1] < h + length or (kinematic.any() and positions.shape[1] < h + length):
+            what = "planes" if planes.shape[1] < h + length else "positions (the kinematic particles' driven frames)"
+            got = planes.shape[1] if what == "planes" else positions.shape[1]
+            raise ValueError(f"rollout: run {i} of {length} steps needs {h + length} frames of {what} (history {h} + {length}), got {got}")
     order = sorted(range(len(runs)), key=lambda i: -runs[i][5])  # longest first: the runs still rolling are a prefix
     longest = runs[order[0]][5]
 
@@ -54,6 +51,8 @@ def rollout_runs(model, runs: list[tuple], kinematic: torch.Tensor, history: int
                          positions[:active, h + k])
         out.append(nxt)
         window = torch.cat([window[:, 1:], nxt[:, None]], 1)
+    if len(runs) == 1:
+        return [torch.stack(out, 1)]
     found, first = [None] * len(runs), 0
     for i in order:
         b, length = runs[i][0].shape[0], runs[i][5]
