@@ -197,6 +197,15 @@ def test_runs_of_different_lengths_roll_together_as_each_alone(env):
     assert not torch.allclose(together[0][:, 0], together[1][:, 0])  # the runs are not one rollout repeated
 
 
+def test_a_rollout_short_of_planes_or_driven_frames_is_refused_by_name():
+    scene, tr, g, q, planes, kin = inputs("mass_rope", batch=1, steps=10)
+    model = DynamicsPrior(scene.param_low.tolist(), scene.param_high.tolist(), scene.n_instances, radius=0.08, history=4).eval()
+    with pytest.raises(ValueError, match=r"needs 7 frames of positions \(the kinematic particles' driven frames\).*got 4"):
+        rollout(model, tr.positions[:, :4], g, q, tr.params, planes[:, :7], kin, 3)
+    with pytest.raises(ValueError, match="needs 7 frames of planes.*got 6"):
+        rollout(model, tr.positions[:, :7], g, q, tr.params, planes[:, :6], kin, 3)
+
+
 def test_action_lookahead_needs_the_predicted_frame():
     scene, tr, g, q, planes, kin = inputs("mass_rope", batch=1, steps=10)
     model = DynamicsPrior(scene.param_low.tolist(), scene.param_high.tolist(), scene.n_instances, radius=0.08, action_lookahead=True)
