@@ -7,7 +7,7 @@ import json
 import pytest
 import torch
 
-from vgpl.eval.compare import PER_VIDEO_PARAM, compare_rows, paired_comparisons, read_record, short_names
+from vgpl.eval.compare import PER_VIDEO_PARAM, PER_VIDEO_RIGIDNESS, compare_rows, paired_comparisons, read_record, short_names
 
 
 def record(param_errors, t10, env="rigid_fall", ids=None) -> dict:
@@ -30,6 +30,19 @@ def test_each_metric_is_paired_on_the_videos_both_evaluated():
     assert t10["mean_diff"] == 0.0 and t10["verdict"] == "not distinguishable"  # the same future on every video
     header, rows = compare_rows(list(found.values()))
     assert len(header) == len(rows[0]) and rows[0][:3] == ["worse", "parameter MAE %", "40"]
+
+
+def test_each_object_types_rigidness_is_paired_where_both_carry_it():
+    g = torch.Generator().manual_seed(1)
+    sure = 0.9 + 0.1 * torch.rand(30, generator=g)
+    reference, other = record(sure * 10, sure), record(sure * 10, sure)
+    reference[PER_VIDEO_RIGIDNESS.format(10, "cube")] = {str(i): float(v) for i, v in enumerate(sure)}
+    other[PER_VIDEO_RIGIDNESS.format(10, "cube")] = {str(i): float(v) - 0.2 for i, v in enumerate(sure)}  # 0.2 less sure of every cube
+    found = {c["metric"]: c for c in paired_comparisons(reference, {"unsure": other})}
+    cube = found["P(correct rigidness) of cube, T = 10"]
+    assert cube["videos"] == 30 and cube["mean_diff"] == pytest.approx(-0.2, abs=1e-6) and cube["verdict"] == "lower"
+    del other[PER_VIDEO_RIGIDNESS.format(10, "cube")]  # an evaluation without it (w/o rigidness): that row is left out
+    assert "P(correct rigidness) of cube, T = 10" not in {c["metric"] for c in paired_comparisons(reference, {"unsure": other})}
 
 
 def test_other_envs_disjoint_videos_and_old_records_are_refused(tmp_path):

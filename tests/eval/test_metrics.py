@@ -1,11 +1,11 @@
-"""The evaluation's motion metric: the frames' acceleration in mm per frame squared."""
+"""The evaluation's metrics: the frames' acceleration in mm per frame squared, rigidness per object type."""
 
 import math
 
 import pytest
 import torch
 
-from vgpl.eval.metrics import mean_abs_acceleration_mm
+from vgpl.eval.metrics import mean_abs_acceleration_mm, mean_per_type, per_video_per_type
 
 
 def test_a_uniformly_accelerated_fall_reads_its_acceleration_per_frame_squared():
@@ -39,3 +39,13 @@ def test_independent_frame_noise_reads_as_its_second_difference_and_the_mask_sel
 def test_two_frames_have_no_acceleration_and_are_refused():
     with pytest.raises(ValueError, match="2 frames, a second difference needs at least 3"):
         mean_abs_acceleration_mm(torch.zeros(1, 2, 4, 3))
+
+
+def test_rigidness_per_type_averages_each_videos_instances_of_that_type():
+    probs = torch.tensor([[1.0, 0.5, 0.2], [0.0, 0.5, 0.6]])  # [R=2 videos, M=3 instances]
+    types = ["cube", "cube", "rope"]
+    per_video = per_video_per_type(probs, types)
+    assert list(per_video) == ["cube", "rope"]
+    torch.testing.assert_close(per_video["cube"], torch.tensor([0.75, 0.25]))
+    torch.testing.assert_close(per_video["rope"], torch.tensor([0.2, 0.6]))
+    assert {k: float(v) for k, v in mean_per_type(probs, types).items()} == pytest.approx({"cube": 0.5, "rope": 0.4})

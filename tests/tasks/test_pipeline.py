@@ -411,7 +411,11 @@ def test_compare_pairs_two_evaluations_video_by_video_to_their_own_means(tiny, t
                              f"task.others=[{tmp}/run/evaluate/no_params,{tmp}/run/evaluate/densephysnet]", f"paths.output_dir={tmp_path}"))
     comparisons = json.loads((tmp_path / "compare.json").read_text())["comparisons"]
     found = {c["metric"]: c for c in comparisons if c["run"] == "no_params"}
-    assert summary["rows"] == len(comparisons) == 5  # no_params: the parameter MAE, T+1, T+5, T+10 (eval.n_steps=10); DensePhysNet: the MAE
+    # no_params: the parameter MAE, T+1, T+5, T+10 (eval.n_steps=10), the cube's rigidness; DensePhysNet: the MAE
+    assert summary["rows"] == len(comparisons) == 6
+    (rigid_key,) = [k for k in full if k.startswith("rigidness_prob@")]  # the cube's at T = observed
+    rigid = found[f"P(correct rigidness) of {rigid_key.split('/', 1)[1]}, T = {full['observed']}"]
+    assert rigid["reference_mean"] == pytest.approx(full[rigid_key], rel=1e-5) and rigid["run_mean"] == pytest.approx(no_params[rigid_key], rel=1e-5)
     param = found["parameter MAE %"]
     assert param["videos"] == full["n_test"] and param["reference_mean"] == pytest.approx(full["param_mae_pct"], rel=1e-5)
     assert param["mean_diff"] == pytest.approx(no_params["param_mae_pct"] - full["param_mae_pct"], rel=1e-4)

@@ -1,8 +1,9 @@
 """Two or more evaluations of one test set, paired video by video: is one training recipe's module
 really better than another's? Each evaluation's metrics.json keeps every test video's parameter
-error (``PER_VIDEO_PARAM``) and future error at each horizon (``PER_VIDEO``, tables.py); this
-pairs them by rollout id and bootstraps the mean difference (vgpl.eval.paired), for the parameter
-MAE and every T+k both evaluations carry."""
+error (``PER_VIDEO_PARAM``), future error at each horizon (``PER_VIDEO``, tables.py) and
+probability of each object type's correct rigidness label (``PER_VIDEO_RIGIDNESS``); this pairs
+them by rollout id and bootstraps the mean difference (vgpl.eval.paired), for the parameter MAE,
+every T+k and every rigidness both evaluations carry."""
 
 from __future__ import annotations
 
@@ -14,6 +15,7 @@ from vgpl.eval.paired import paired_bootstrap, paired_values
 from vgpl.eval.tables import PER_VIDEO, paired_steps
 
 PER_VIDEO_PARAM = "per_video_param_mae_pct"  # record key: {rollout id (str): that video's parameter error, % of range, mean over parameters}
+PER_VIDEO_RIGIDNESS = "per_video_rigidness_prob@{}/{}"  # record key (T, object type): {rollout id (str): P(correct label), mean over that type's instances}
 
 
 def read_record(path: str | Path) -> dict:
@@ -39,8 +41,11 @@ def short_names(paths: list[str]) -> list[str]:
 
 
 def compared_metrics(reference: dict, other: dict) -> list[tuple[str, str]]:
-    """(label, record key) of every per-video metric both records carry: the parameter MAE, then T+k in order."""
-    keys = [("parameter MAE %", PER_VIDEO_PARAM)] + [(f"T+{k} MSE x 1e4", PER_VIDEO.format(k)) for k in paired_steps([reference, other])]
+    """(label, record key) of every per-video metric both records carry: the parameter MAE, T+k in
+    order, then each object type's rigidness."""
+    rigidness = sorted(k for k in reference if k.startswith(PER_VIDEO_RIGIDNESS.split("@")[0] + "@"))
+    keys = ([("parameter MAE %", PER_VIDEO_PARAM)] + [(f"T+{k} MSE x 1e4", PER_VIDEO.format(k)) for k in paired_steps([reference, other])]
+            + [(f"P(correct rigidness) of {k.split('/', 1)[1]}, T = {k.split('@')[1].split('/')[0]}", k) for k in rigidness])
     return [(label, key) for label, key in keys if key in reference and key in other]
 
 

@@ -14,7 +14,15 @@ from vgpl.data.proposals import propose_windows, truth_proposals
 from vgpl.data.trajectories import Rollouts
 from vgpl.data.window_pool import check_window_pool, pool_windows
 from vgpl.eval.error_sources import RolloutInputs, error_sources
-from vgpl.eval.metrics import correct_rigidness_prob, mean_abs_acceleration_mm, mean_per_type, midpoint_error_pct, param_signed_error_pct, position_mse_x1e4
+from vgpl.eval.metrics import (
+    correct_rigidness_prob,
+    mean_abs_acceleration_mm,
+    mean_per_type,
+    midpoint_error_pct,
+    param_signed_error_pct,
+    per_video_per_type,
+    position_mse_x1e4,
+)
 from vgpl.eval.rollout import future_mse, rollout
 from vgpl.eval.test_time_fit import TestTimeFit, refit_inferred
 
@@ -28,6 +36,7 @@ class GroundingResult:
     params: torch.Tensor | None = None  # [R, P] inferred (physical)
     param_error: torch.Tensor | None = None  # [R] each video's parameter error, % of range, mean over parameters
     sources: dict = field(default_factory=dict)  # error_sources' result, where asked for
+    rigidness_correct: dict = field(default_factory=dict)  # type -> [R] each video's probability of the correct label at T = observed
 
 
 @torch.no_grad()
@@ -160,12 +169,13 @@ def evaluate_grounding(dynamics, visual, inference, scene, test: Rollouts, ablat
         inferred = RolloutInputs(x[:, -h:], out["grouping"], out["rigidness"], out["params"])
         sources = error_sources(dynamics, inferred, known, driven[:, h:], planes, kinematic, truth)
     # rigidness against observation length, per object type
-    curve = {}
+    curve, per_video_rigidness = {}, {}
     if ablation.rigidness:
         types = scene.instance_types
         at_observed = correct_rigidness_prob(out["rigidness_prob"], test.rigid)  # [R, M]
         for name, prob in mean_per_type(at_observed, types).items():
             metrics[f"rigidness_prob@{observed}/{name}"] = float(prob)
+        per_video_rigidness = per_video_per_type(at_observed, types)
         if rigidness_curve is None:
             curve = rigidness_against_length(inference, proposals[:curve_rollouts], logits[:curve_rollouts], kinematic, test.rigid, types, chunk,
                                              progress, None if slots is None else slots[:curve_rollouts], window_pool)
@@ -174,7 +184,7 @@ def evaluate_grounding(dynamics, visual, inference, scene, test: Rollouts, ablat
             if set(curve) != set(types) or any(len(v) != t_max for v in curve.values()):
                 lengths = {k: len(v) for k, v in curve.items()}
                 raise ValueError(f"the rigidness curve given has {lengths} values per type, expected {t_max} for each of {sorted(set(types))}")
-    return GroundingResult(metrics, curve, truth, pred, out["params"], err, sources)
+    return GroundingResult(metrics, curve, truth, pred, out["params"], err, sources, per_video_rigidness)
 
 
 @torch.no_grad()

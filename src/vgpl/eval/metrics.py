@@ -52,4 +52,10 @@ def correct_rigidness_prob(rigidness: torch.Tensor, rigid: torch.Tensor) -> torc
 def mean_per_type(probs: torch.Tensor, types) -> dict:
     """probs [R, M, ...] averaged over the videos and the instances of each object type
     (``types`` names each of the M instances): type -> [...], in the order types first appear."""
-    return {name: probs[:, [m for m, n in enumerate(types) if n == name]].mean((0, 1)) for name in dict.fromkeys(types)}
+    return {name: video.mean(0) for name, video in per_video_per_type(probs, types).items()}
+
+
+def per_video_per_type(probs: torch.Tensor, types) -> dict:
+    """probs [R, M, ...] averaged over the instances of each object type, video by video:
+    type -> [R, ...], in the order types first appear."""
+    return {name: probs[:, [m for m, n in enumerate(types) if n == name]].mean(1) for name in dict.fromkeys(types)}

@@ -25,7 +25,7 @@ from vgpl.data.proposals import exported_proposals, proposal_source
 from vgpl.data.trajectories import load_split
 from vgpl.data.window_pool import check_window_pool
 from vgpl.eval import figures
-from vgpl.eval.compare import PER_VIDEO_PARAM
+from vgpl.eval.compare import PER_VIDEO_PARAM, PER_VIDEO_RIGIDNESS
 from vgpl.eval.error_breakdown import error_breakdown, rollout_mse_x1e4
 from vgpl.eval.error_sources import error_sources_rows
 from vgpl.eval.grounding import evaluate_grounding, proposed_frames
@@ -120,6 +120,8 @@ def evaluate(cfg: DictConfig) -> dict:
     record[f"breakdown@{last}"] = error_breakdown(result.prediction, result.truth, torch.as_tensor(scene.instance), torch.cat([test.params, result.params], 1),
                                                   last, names + [f"inferred_{n}" for n in names])
     record[PER_VIDEO_PARAM] = per_video_map(test.rollout_ids, result.param_error)  # paired by task=compare
+    for name, values in result.rigidness_correct.items():
+        record[PER_VIDEO_RIGIDNESS.format(observed, name)] = per_video_map(test.rollout_ids, values)
     errors = {}  # T+k -> [R], each video's error at Table 2's horizons (and the last), for params.csv and the paired tables
     for step in sorted({k for k in HORIZONS if k <= last} | {last}):
         errors[step] = rollout_mse_x1e4(result.prediction, result.truth, step)
