@@ -39,16 +39,19 @@ def rollout_runs(model, runs: list[tuple], kinematic: torch.Tensor, history: int
     def padded(x: torch.Tensor, frames: int) -> torch.Tensor:  # the last frame repeated: frames no active run reads
         return torch.cat([x, x[:, -1:].expand(-1, frames - x.shape[1], *x.shape[2:])], 1) if x.shape[1] < frames else x
 
-    positions = torch.cat([padded(runs[i][0], h + longest) for i in order])
-    grouping, rigidness, params = (torch.cat([runs[i][j] for i in order]) for j in (1, 2, 3))
-    planes = torch.cat([padded(runs[i][4], h + longest) for i in order])
+    def joined(j: int, pad: bool = False) -> torch.Tensor | None:  # the runs' j-th inputs as one batch (one run's as given: may be None)
+        parts = [padded(runs[i][j], h + longest) if pad else runs[i][j] for i in order]
+        return parts[0] if len(parts) == 1 else torch.cat(parts)
+
+    positions, grouping, rigidness, params, planes = joined(0, pad=True), joined(1), joined(2), joined(3), joined(4, pad=True)
     lengths = torch.tensor([runs[i][5] for i in order for _ in range(runs[i][0].shape[0])])
     window, out = positions[:, :h], []
     for k in range(longest):
         active = int((lengths > k).sum())
-        window = window[:active]
-        nxt = model.step(window, grouping[:active], rigidness[:active], params[:active], planes[:active, k : k + h + 1], kinematic,
-                         positions[:active, h + k])
+        rows = slice(0, active)
+        window = window[rows]
+        nxt = model.step(window, *(None if x is None else x[rows] for x in (grouping, rigidness, params)), planes[rows, k : k + h + 1], kinematic,
+                         positions[rows, h + k])
         out.append(nxt)
         window = torch.cat([window[:, 1:], nxt[:, None]], 1)
     if len(runs) == 1:
