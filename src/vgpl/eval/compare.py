@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 from pathlib import Path
 
 from vgpl.eval.paired import paired_bootstrap, paired_values
@@ -16,6 +17,7 @@ from vgpl.eval.tables import PER_VIDEO, paired_steps
 
 PER_VIDEO_PARAM = "per_video_param_mae_pct"  # record key: {rollout id (str): that video's parameter error, % of range, mean over parameters}
 PER_VIDEO_RIGIDNESS = "per_video_rigidness_prob@{}/{}"  # record key (T, object type): {rollout id (str): P(correct label), mean over that type's instances}
+RIGIDNESS_KEY = re.compile(re.escape(PER_VIDEO_RIGIDNESS.partition("{")[0]) + r"(\d+)/(.+)$")  # its T and object type
 
 
 def read_record(path: str | Path) -> dict:
@@ -43,9 +45,9 @@ def short_names(paths: list[str]) -> list[str]:
 def compared_metrics(reference: dict, other: dict) -> list[tuple[str, str]]:
     """(label, record key) of every per-video metric both records carry: the parameter MAE, T+k in
     order, then each object type's rigidness."""
-    rigidness = sorted(k for k in reference if k.startswith(PER_VIDEO_RIGIDNESS.split("@")[0] + "@"))
+    rigidness = sorted(m for k in reference if (m := RIGIDNESS_KEY.match(k)))
     keys = ([("parameter MAE %", PER_VIDEO_PARAM)] + [(f"T+{k} MSE x 1e4", PER_VIDEO.format(k)) for k in paired_steps([reference, other])]
-            + [(f"P(correct rigidness) of {k.split('/', 1)[1]}, T = {k.split('@')[1].split('/')[0]}", k) for k in rigidness])
+            + [(f"P(correct rigidness) of {m[2]}, T = {m[1]}", m[0]) for m in rigidness])
     return [(label, key) for label, key in keys if key in reference and key in other]
 
 

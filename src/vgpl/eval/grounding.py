@@ -173,9 +173,9 @@ def evaluate_grounding(dynamics, visual, inference, scene, test: Rollouts, ablat
     if ablation.rigidness:
         types = scene.instance_types
         at_observed = correct_rigidness_prob(out["rigidness_prob"], test.rigid)  # [R, M]
-        for name, prob in mean_per_type(at_observed, types).items():
-            metrics[f"rigidness_prob@{observed}/{name}"] = float(prob)
         per_video_rigidness = per_video_per_type(at_observed, types)
+        for name, video in per_video_rigidness.items():
+            metrics[f"rigidness_prob@{observed}/{name}"] = float(video.mean())
         if rigidness_curve is None:
             curve = rigidness_against_length(inference, proposals[:curve_rollouts], logits[:curve_rollouts], kinematic, test.rigid, types, chunk,
                                              progress, None if slots is None else slots[:curve_rollouts], window_pool)

@@ -29,10 +29,9 @@ def rollout_runs(model, runs: list[tuple], kinematic: torch.Tensor, history: int
     """
     h = history or model.hparams.history
     for i, (positions, *_, planes, length) in enumerate(runs):
-        if planes.shape[1] < h + length or (kinematic.any() and positions.shape[1] < h + length):
-            what = "planes" if planes.shape[1] < h + length else "positions (the kinematic particles' driven frames)"
-            got = planes.shape[1] if what == "planes" else positions.shape[1]
-            raise ValueError(f"rollout: run {i} of {length} steps needs {h + length} frames of {what} (history {h} + {length}), got {got}")
+        for what, x, read in (("planes", planes, True), ("positions (the kinematic particles' driven frames)", positions, kinematic.any())):
+            if read and x.shape[1] < h + length:
+                raise ValueError(f"rollout: run {i} of {length} steps needs {h + length} frames of {what} (history {h} + {length}), got {x.shape[1]}")
     order = sorted(range(len(runs)), key=lambda i: -runs[i][5])  # longest first: the runs still rolling are a prefix
     longest = runs[order[0]][5]
 
@@ -54,8 +53,6 @@ def rollout_runs(model, runs: list[tuple], kinematic: torch.Tensor, history: int
                          positions[rows, h + k])
         out.append(nxt)
         window = torch.cat([window[:, 1:], nxt[:, None]], 1)
-    if len(runs) == 1:
-        return [torch.stack(out, 1)]
     found, first = [None] * len(runs), 0
     for i in order:
         b, length = runs[i][0].shape[0], runs[i][5]
