@@ -7,7 +7,9 @@ rollout, the env's radius):
 training step (forward + backward + Adam, graph construction included for vgpl; in float32 and in
 bf16 mixed precision: fast only where the CPU has avx512_bf16 or amx, see the machine's `isa`), forward, and
 one rollout step at batch 1 (median of repeated calls); growth of the peak resident set; and the multiply-adds
-each design needs per forward pass, counted from the layer shapes.
+each design needs per forward pass, counted from the layer shapes. vgpl is timed as run.py runs it
+(malloc keeping freed memory, vgpl.allocator) and with glibc's default settings
+(``vgpl_default_allocator``); the dense reference with the default, as the authors' code ran.
 """
 
 from __future__ import annotations
@@ -27,16 +29,32 @@ from dense_dpinet import DenseDPINet  # noqa: E402
 from machine import describe  # noqa: E402
 
 import vgpl.nn.propagation as propagation  # noqa: E402
+from vgpl.allocator import keep_freed_memory  # noqa: E402
 from vgpl.models.dynamics_prior import DynamicsPrior  # noqa: E402
 from vgpl.sim.envs import make_scene  # noqa: E402
 
 RADIUS = {"rigid_fall": 0.08, "fluid_cube": 0.08, "mass_rope": 0.25}
 W = 150
-# The authors' own DPI-Net (models.py of their release, run unchanged): one training step at batch 4,
-# width 150, 2 propagation steps, float32, on AUTHORS_MACHINE (docs/benchmarks.md). Ratios against
-# these figures from another machine say as much about the machines as about the code.
-AUTHORS_MS = {"rigid_fall": 304.0, "mass_rope": 888.0, "fluid_cube": 579.0}
-AUTHORS_MACHINE = {"cpu": "AMD EPYC", "isa": ["avx2", "avx512f", "avx512_bf16", "avx512_vnni"], "cores": 2, "torch_threads": 2}
+# The authors' own DPI-Net (the DynamicsPredictor of their release's models.py, op for op): one training
+# step at batch 4, width 150, 2 propagation steps, float32, 2 threads, at each env's node and edge counts
+# below, on the machine given (docs/benchmarks.md). Ratios against figures from another machine say as
+# much about the machines as about the code, so a run uses the figures of its own CPU generation where
+# there are some.
+AUTHORS_REFERENCE = [
+    {"machine": {"cpu": "AMD EPYC", "cpu_generation": None, "isa": ["avx2", "avx512f", "avx512_bf16", "avx512_vnni"],
+                 "cores": 2, "torch": "2.13.0+cpu"},
+     "train_step_ms": {"rigid_fall": 304.0, "mass_rope": 888.0, "fluid_cube": 579.0}},
+    {"machine": {"cpu": "AMD EPYC", "cpu_generation": "family 26 model 2", "isa": ["avx2", "avx512f", "avx512_bf16", "avx512_vnni"],
+                 "cores": 2, "torch": "2.14.1+cu130"},
+     "train_step_ms": {"rigid_fall": 159.6, "mass_rope": 410.4, "fluid_cube": 504.1}},
+]
+
+
+def authors_reference(machine: dict) -> dict:
+    """The authors' figures measured on ``machine``'s CPU generation, else the first ones."""
+    generation = machine.get("cpu_generation")
+    same = [ref for ref in AUTHORS_REFERENCE if generation is not None and ref["machine"]["cpu_generation"] == generation]
+    return {**(same or AUTHORS_REFERENCE)[0], "same_cpu_generation": bool(same)}
 
 
 def timed(fn, repeat: int) -> float:
@@ -151,8 +169,10 @@ def measure(env: str, impl: str, batch: int = 4) -> dict:
     return {k: round(x, 2) for k, x in ref.items()}
 
 
-def run_child(env: str, impl: str) -> dict:
-    out = subprocess.run([sys.executable, __file__, "--child", env, impl], capture_output=True, text=True, check=True)
+def run_child(env: str, impl: str, allocator: str = "default") -> dict:
+    """``measure`` in a fresh process; ``allocator`` "keep": with vgpl.allocator.keep_freed_memory, as
+    run.py's tasks run (``keep_freed_memory: true``), "default": glibc's own settings."""
+    out = subprocess.run([sys.executable, __file__, "--child", env, impl, allocator], capture_output=True, text=True, check=True)
     return json.loads(out.stdout.strip().splitlines()[-1])
 
 
@@ -160,18 +180,27 @@ def main() -> None:
     torch.set_num_threads(2)
     torch.manual_seed(0)
     if sys.argv[1:2] == ["--child"]:
+        if sys.argv[4] == "keep":
+            keep_freed_memory()
         print(json.dumps(measure(sys.argv[2], sys.argv[3])))
         return
-    print(json.dumps({"machine": describe()}), flush=True)
+    machine = describe()
+    authors = authors_reference(machine)
+    print(json.dumps({"machine": machine}), flush=True)
     for env in sys.argv[1:] or ["rigid_fall", "fluid_cube", "mass_rope"]:
-        ours, ref = run_child(env, "vgpl"), run_child(env, "dense")
+        ours, ref = run_child(env, "vgpl", "keep"), run_child(env, "dense")
+        plain = run_child(env, "vgpl", "default")
         counts = {k: ours.pop(k) for k in ("nodes_per_scene", "edges_per_scene", "forward_gmacs_vgpl", "forward_gmacs_dense")}
         print(json.dumps({
-            "env": env, "batch": 4, "width": W, "propagation_steps": 2, **counts, "vgpl": ours, "dense_reference": ref,
+            "env": env, "batch": 4, "width": W, "propagation_steps": 2, **counts, "vgpl": ours,
+            "vgpl_default_allocator": {k: plain[k] for k in ("train_step_ms", "train_step_ms_bf16_mixed", "forward_ms", "peak_rss_growth_mb")},
+            "dense_reference": ref,
             "train_step_speedup": round(ref["train_step_ms"] / ours["train_step_ms"], 2),
             "train_step_speedup_bf16_mixed": round(ref["train_step_ms"] / ours["train_step_ms_bf16_mixed"], 2),
-            "authors_train_step_ms": AUTHORS_MS[env], "authors_machine": AUTHORS_MACHINE,
-            "train_step_speedup_vs_authors": round(AUTHORS_MS[env] / ours["train_step_ms"], 2),
+            "authors_train_step_ms": authors["train_step_ms"][env], "authors_machine": authors["machine"],
+            "authors_same_cpu_generation": authors["same_cpu_generation"],
+            "train_step_speedup_vs_authors": round(authors["train_step_ms"][env] / ours["train_step_ms"], 2),
+            "train_step_speedup_vs_authors_bf16_mixed": round(authors["train_step_ms"][env] / ours["train_step_ms_bf16_mixed"], 2),
         }), flush=True)
 
 

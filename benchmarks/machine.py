@@ -10,7 +10,7 @@ from pathlib import Path
 import torch
 
 import vgpl
-from vgpl.hardware import ISA_FLAGS, bf16_native, cpu_info
+from vgpl.hardware import ISA_FLAGS, bf16_native, cpu_family_model, cpu_info
 
 
 def code_commit() -> str | None:
@@ -29,6 +29,7 @@ def describe() -> dict:
     cpu, flags = cpu_info()
     return {
         "cpu": cpu,
+        "cpu_generation": cpu_family_model(),
         "isa": [flag for flag in ISA_FLAGS if flag in flags],
         "bf16_native": bf16_native(flags),
         "cores": len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count(),  # the cores this process may run on

@@ -1,6 +1,6 @@
 """The CPU description benchmarks print, and the warning for bf16 on a CPU that emulates it."""
 
-from vgpl.hardware import bf16_native, cpu_info, precision_warning
+from vgpl.hardware import bf16_native, cpu_family_model, cpu_info, precision_warning
 
 CASCADE_LAKE = frozenset({"avx2", "avx512f", "avx512_vnni"})
 ZEN4 = CASCADE_LAKE | {"avx512_bf16"}
@@ -18,6 +18,15 @@ def test_cpu_info_reads_model_and_flags(tmp_path):
     info.write_text("processor\t: 0\nmodel name\t: Test CPU @ 1GHz\nflags\t\t: fpu avx2 avx512f\n\nprocessor\t: 1\nflags\t\t: fpu\n")
     assert cpu_info(str(info)) == ("Test CPU @ 1GHz", frozenset({"fpu", "avx2", "avx512f"}))
     assert cpu_info(str(tmp_path / "missing"))[1] == frozenset()
+
+
+def test_cpu_generation_reads_family_and_model_not_model_name(tmp_path):
+    info = tmp_path / "cpuinfo"
+    info.write_text("processor\t: 0\ncpu family\t: 26\nmodel\t\t: 2\nmodel name\t: AMD EPYC\n")
+    assert cpu_family_model(str(info)) == "family 26 model 2"
+    info.write_text("processor\t: 0\nmodel name\t: AMD EPYC\n")
+    assert cpu_family_model(str(info)) is None
+    assert cpu_family_model(str(tmp_path / "missing")) is None
 
 
 def test_bf16_warning_only_where_a_cpu_would_emulate_it():

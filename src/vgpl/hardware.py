@@ -27,6 +27,19 @@ def cpu_info(path: str = "/proc/cpuinfo") -> tuple[str, frozenset[str]]:
     return field("model name").strip() or platform.processor() or "", frozenset(field("flags").split())
 
 
+def cpu_family_model(path: str = "/proc/cpuinfo") -> str | None:
+    """"family F model M" of the first CPU, or None where ``path`` is unreadable or lacks them. A VM
+    may name every generation of a vendor's CPUs alike ("AMD EPYC"); the family and model tell them apart."""
+    try:
+        with open(path) as f:
+            lines = f.read().splitlines()
+    except OSError:
+        return None
+    field = lambda key: next((line.split(":", 1)[1].strip() for line in lines if line.split(":", 1)[0].strip() == key), None)  # noqa: E731
+    family, model = field("cpu family"), field("model")
+    return None if family is None or model is None else f"family {family} model {model}"
+
+
 def bf16_native(flags: frozenset[str] | None = None) -> bool | None:
     """Whether the CPU computes bf16 natively; None where its flags cannot be read."""
     flags = cpu_info()[1] if flags is None else flags

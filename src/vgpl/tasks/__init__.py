@@ -10,6 +10,8 @@ import importlib
 from omegaconf import DictConfig, OmegaConf
 from omegaconf.errors import InterpolationResolutionError
 
+from vgpl.allocator import keep_freed_memory
+
 TASKS: dict[str, str] = {
     "generate": "vgpl.tasks.generate:generate",
     "demo": "vgpl.tasks.demo:demo",
@@ -47,5 +49,7 @@ def run_task(cfg: DictConfig) -> dict:
     if name not in TASKS:
         raise ValueError(f"unknown task.name '{name}': expected one of {sorted(TASKS)}")
     check_resolvable(cfg)
+    if cfg.get("keep_freed_memory", False):
+        keep_freed_memory()
     module, function = TASKS[name].split(":")
     return getattr(importlib.import_module(module), function)(cfg)
