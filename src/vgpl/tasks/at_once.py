@@ -13,6 +13,8 @@ from concurrent.futures import ProcessPoolExecutor
 
 from omegaconf import DictConfig
 
+from vgpl.allocator import keep_freed_memory
+
 
 def threads_each(threads: int, jobs: int) -> int:
     """Torch threads for each of ``jobs`` processes sharing ``threads`` (at least 1)."""
@@ -23,8 +25,10 @@ def run_at_once(fn: Callable[[DictConfig], dict], configs: dict[str, DictConfig]
     """``fn(config)`` for every named config, all at once in spawned processes; returns name -> result.
 
     ``fn`` must be importable (a module-level function) and each config resolved (no ``${hydra:...}``):
-    a child process has no Hydra run. The first failure is raised here, after the others end."""
+    a child process has no Hydra run. Each child keeps freed memory as run_task does where every config
+    asks for it (``keep_freed_memory``). The first failure is raised here, after the others end."""
     context = multiprocessing.get_context("spawn")
-    with ProcessPoolExecutor(max_workers=len(configs), mp_context=context) as pool:
+    keep = all(c.get("keep_freed_memory", False) for c in configs.values())
+    with ProcessPoolExecutor(max_workers=len(configs), mp_context=context, initializer=keep_freed_memory if keep else None) as pool:
         jobs = {name: pool.submit(fn, c) for name, c in configs.items()}
         return {name: job.result() for name, job in jobs.items()}
