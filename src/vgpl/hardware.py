@@ -15,28 +15,33 @@ ISA_FLAGS = ("avx2", "avx512f", "avx512_bf16", "avx512_vnni", "amx_bf16", "amx_t
 BF16_FLAGS = frozenset({"avx512_bf16", "amx_bf16"})
 
 
-@functools.cache
-def cpu_info(path: str = "/proc/cpuinfo") -> tuple[str, frozenset[str]]:
-    """(model name, set of feature flags) of the first CPU; flags are empty where ``path`` is unreadable."""
-    try:
-        with open(path) as f:
-            lines = f.read().splitlines()
-    except OSError:
-        return platform.processor() or "", frozenset()
-    field = lambda key: next((line.split(":", 1)[1] for line in lines if line.startswith(key)), "")  # noqa: E731
-    return field("model name").strip() or platform.processor() or "", frozenset(field("flags").split())
-
-
-def cpu_family_model(path: str = "/proc/cpuinfo") -> str | None:
-    """"family F model M" of the first CPU, or None where ``path`` is unreadable or lacks them. A VM
-    may name every generation of a vendor's CPUs alike ("AMD EPYC"); the family and model tell them apart."""
+def cpuinfo_fields(path: str = "/proc/cpuinfo") -> dict[str, str] | None:
+    """The first value of each ``key : value`` line of ``path`` (the first CPU's, where the file lists
+    several), or None where it is unreadable."""
     try:
         with open(path) as f:
             lines = f.read().splitlines()
     except OSError:
         return None
-    field = lambda key: next((line.split(":", 1)[1].strip() for line in lines if line.split(":", 1)[0].strip() == key), None)  # noqa: E731
-    family, model = field("cpu family"), field("model")
+    fields: dict[str, str] = {}
+    for key, sep, value in (line.partition(":") for line in lines):
+        if sep:
+            fields.setdefault(key.strip(), value.strip())
+    return fields
+
+
+@functools.cache
+def cpu_info(path: str = "/proc/cpuinfo") -> tuple[str, frozenset[str]]:
+    """(model name, set of feature flags) of the first CPU; flags are empty where ``path`` is unreadable."""
+    fields = cpuinfo_fields(path) or {}
+    return fields.get("model name") or platform.processor() or "", frozenset(fields.get("flags", "").split())
+
+
+def cpu_family_model(path: str = "/proc/cpuinfo") -> str | None:
+    """"family F model M" of the first CPU, or None where ``path`` is unreadable or lacks them. A VM
+    may name every generation of a vendor's CPUs alike ("AMD EPYC"); the family and model tell them apart."""
+    fields = cpuinfo_fields(path) or {}
+    family, model = fields.get("cpu family"), fields.get("model")
     return None if family is None or model is None else f"family {family} model {model}"
 
 
