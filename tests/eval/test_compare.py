@@ -45,6 +45,18 @@ def test_each_object_types_rigidness_is_paired_where_both_carry_it():
     assert "P(correct rigidness) of cube, T = 10" not in {c["metric"] for c in paired_comparisons(reference, {"unsure": other})}
 
 
+def test_an_env_with_two_object_types_pairs_each_in_order_of_t_then_type():
+    """MassRope carries a sphere and a rope: both are paired, ordered by T and then by type."""
+    reference, other = record([1.0] * 5, [1.0] * 5, env="mass_rope"), record([1.0] * 5, [1.0] * 5, env="mass_rope")
+    for t, kind, drop in ((10, "sphere", 0.1), (10, "rope", 0.3), (2, "rope", 0.0)):
+        reference[PER_VIDEO_RIGIDNESS.format(t, kind)] = {str(i): 0.9 for i in range(5)}
+        other[PER_VIDEO_RIGIDNESS.format(t, kind)] = {str(i): 0.9 - drop for i in range(5)}
+    found = [c for c in paired_comparisons(reference, {"other": other}) if "rigidness" in c["metric"]]
+    assert [c["metric"] for c in found] == ["P(correct rigidness) of rope, T = 2", "P(correct rigidness) of rope, T = 10",
+                                             "P(correct rigidness) of sphere, T = 10"]
+    assert [round(c["mean_diff"], 6) for c in found] == [0.0, -0.3, -0.1]
+
+
 def test_other_envs_disjoint_videos_and_old_records_are_refused(tmp_path):
     reference = record([1.0, 2.0], [1.0, 1.0])
     with pytest.raises(ValueError, match="an evaluation on 'mass_rope'"):

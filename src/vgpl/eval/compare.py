@@ -45,7 +45,7 @@ def short_names(paths: list[str]) -> list[str]:
 def compared_metrics(reference: dict, other: dict) -> list[tuple[str, str]]:
     """(label, record key) of every per-video metric both records carry: the parameter MAE, T+k in
     order, then each object type's rigidness."""
-    rigidness = sorted(m for k in reference if (m := RIGIDNESS_KEY.match(k)))
+    rigidness = sorted((m for k in reference if (m := RIGIDNESS_KEY.match(k))), key=lambda m: (int(m[1]), m[2]))  # by T, then type
     keys = ([("parameter MAE %", PER_VIDEO_PARAM)] + [(f"T+{k} MSE x 1e4", PER_VIDEO.format(k)) for k in paired_steps([reference, other])]
             + [(f"P(correct rigidness) of {m[2]}, T = {m[1]}", m[0]) for m in rigidness])
     return [(label, key) for label, key in keys if key in reference and key in other]
