@@ -69,3 +69,15 @@ def test_zero_steps_keep_the_estimate_and_bad_settings_are_named():
         TestTimeFit(5, 0)
     with pytest.raises(ValueError, match="2 observed frames leave nothing to fit"):
         fit(falling([-12.0], frames=2), 0.0)
+
+
+def test_the_progress_bar_counts_videos_across_chunks(capsys):
+    frames = falling([-12.0, -9.0, -6.5])
+    b = frames.shape[0]
+    fit_to_own_frames(Ballistic(), frames, torch.ones(b, 5, 1), torch.full((b, 1), 0.5), torch.zeros(b, 1), torch.zeros(b, 10, 0, 4),
+                      torch.zeros(5, dtype=torch.bool), TestTimeFit(2), to_physical, chunk=2, progress=True)
+    bar = capsys.readouterr().err
+    assert "test-time fit (2 steps)" in bar and "3/3" in bar and "video" in bar
+    fit_to_own_frames(Ballistic(), frames, torch.ones(b, 5, 1), torch.full((b, 1), 0.5), torch.zeros(b, 1), torch.zeros(b, 10, 0, 4),
+                      torch.zeros(5, dtype=torch.bool), TestTimeFit(2), to_physical, chunk=2)
+    assert "test-time fit" not in capsys.readouterr().err  # off by default

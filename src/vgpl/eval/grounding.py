@@ -86,8 +86,8 @@ def evaluate_grounding(dynamics, visual, inference, scene, test: Rollouts, ablat
     these proposals (the three ablations that infer rigidness share it): it is reported instead of
     measured again. ``trace_sources`` also rolls the prior with each input taken from the truth in
     turn (``error_sources``: start positions, velocities, G, Q, P), a diagnostic of the future error.
-    ``progress`` shows bars over the visual prior's windows and the rigidness curve's lengths (the
-    two long parts: MassRope's evaluation of 100 videos took 13 min on 2 CPU cores, 6-7 without the curve).
+    ``progress`` shows bars over the long parts: the visual prior's windows, the test-time fit's
+    videos and the rigidness curve's lengths.
     """
     for m in (dynamics, visual, inference):
         if m is not None:
@@ -131,7 +131,7 @@ def evaluate_grounding(dynamics, visual, inference, scene, test: Rollouts, ablat
     if test_time_fit is not None and test_time_fit.steps > 0 and ablation.params:
         started = time.perf_counter()
         fitted = refit_inferred(out, inference, dynamics, x, scene.planes_at(test.actions[:, seen]), kinematic, test_time_fit,
-                                bool(ablation.rigidness), chunk)
+                                bool(ablation.rigidness), chunk, progress)
         metrics["test_time_fit_seconds_per_video"] = (time.perf_counter() - started) / len(x)
         metrics["own_frames_error_before_fit"] = float(fitted["error_before"].mean())
         metrics["own_frames_error_after_fit"] = float(fitted["error_after"].mean())

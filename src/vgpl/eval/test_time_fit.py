@@ -15,6 +15,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import torch
+from tqdm.auto import tqdm
 
 from vgpl.eval.rollout import rollout
 
@@ -49,8 +50,9 @@ def own_frames_error(dynamics, positions, grouping, rigidness, params, planes, k
 
 
 def fit_to_own_frames(dynamics, positions, grouping, rigidness, params_normalised, planes, kinematic, fit: TestTimeFit,
-                      to_physical, chunk: int = 16) -> dict:
-    """Fit P (and Q) of every video to its own frames, ``chunk`` videos at a time.
+                      to_physical, chunk: int = 16, progress: bool = False) -> dict:
+    """Fit P (and Q) of every video to its own frames, ``chunk`` videos at a time (``progress``: a
+    bar over the videos).
 
     Args: positions [B, T, N, 3] the refined observed frames (T > the prior's history); grouping
     [B, N, M]; rigidness [B, M] the amortised Q (a probability); params_normalised [B, P] the
@@ -63,23 +65,25 @@ def fit_to_own_frames(dynamics, positions, grouping, rigidness, params_normalise
         raise ValueError(f"test-time fit: {positions.shape[1]} observed frames leave nothing to fit after the prior's history of "
                          f"{dynamics.hparams.history}; observe more frames (eval.observed)")
     parts = []
-    for i in range(0, positions.shape[0], chunk):
-        s = slice(i, i + chunk)
-        parts.append(_fit_chunk(dynamics, positions[s].detach(), grouping[s].detach(), rigidness[s].detach(), params_normalised[s].detach(),
-                                planes[s], kinematic, fit, to_physical))
+    with tqdm(total=positions.shape[0], desc=f"test-time fit ({fit.steps} steps)", unit="video", disable=not progress) as bar:
+        for i in range(0, positions.shape[0], chunk):
+            s = slice(i, i + chunk)
+            parts.append(_fit_chunk(dynamics, positions[s].detach(), grouping[s].detach(), rigidness[s].detach(), params_normalised[s].detach(),
+                                    planes[s], kinematic, fit, to_physical))
+            bar.update(len(parts[-1]["error_after"]))
     return {k: torch.cat([p[k] for p in parts]) for k in parts[0]}
 
 
 def refit_inferred(out: dict, inference, dynamics, positions, planes, kinematic, fit: TestTimeFit, rigidness: bool = True,
-                   chunk: int = 16) -> dict:
+                   chunk: int = 16, progress: bool = False) -> dict:
     """Replace the inference module's P (and Q) in ``out`` (``InferenceModule.infer``'s dict) by
     their test-time fit to ``positions`` [B, T, N, 3], the refined observed frames with the
     actuated particles placed (``fit_to_own_frames``). Q is fitted when ``fit.rigidness`` and
-    ``rigidness`` (the ablation infers it) and the module's estimator is ``blend``. Returns
-    ``fit_to_own_frames``' result."""
+    ``rigidness`` (the ablation infers it) and the module's estimator is ``blend``; ``progress``
+    shows a bar over the videos. Returns ``fit_to_own_frames``' result."""
     fit_q = bool(fit.rigidness and rigidness and inference.estimator == "blend")
     fitted = fit_to_own_frames(dynamics, positions, out["grouping"], out["rigidness_prob"], out["params_normalised"], planes, kinematic,
-                               TestTimeFit(fit.steps, fit.lr, fit_q), inference.to_physical, chunk)
+                               TestTimeFit(fit.steps, fit.lr, fit_q), inference.to_physical, chunk, progress)
     out["params_normalised"], out["params"] = fitted["params_normalised"], inference.to_physical(fitted["params_normalised"])
     if fit_q:
         out["rigidness_prob"], out["rigidness"] = fitted["rigidness"], inference.prior_rigidness(fitted["rigidness"])
