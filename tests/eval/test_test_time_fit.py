@@ -40,10 +40,12 @@ def falling(gravity: list[float], frames: int = 10, n: int = 5) -> torch.Tensor:
     return pos
 
 
-def fit(positions, start_normalised, steps=300, lr=0.05):
+def fit(positions, start_normalised, steps=300, lr=0.05, **options):
+    """``fit_to_own_frames`` against the ballistic prior; ``options``: its chunk and progress."""
     b = positions.shape[0]
     return fit_to_own_frames(Ballistic(), positions, torch.ones(b, 5, 1), torch.full((b, 1), 0.5), torch.full((b, 1), start_normalised),
-                             torch.zeros(b, positions.shape[1], 0, 4), torch.zeros(5, dtype=torch.bool), TestTimeFit(steps, lr, rigidness=True), to_physical)
+                             torch.zeros(b, positions.shape[1], 0, 4), torch.zeros(5, dtype=torch.bool), TestTimeFit(steps, lr, rigidness=True), to_physical,
+                             **options)
 
 
 def test_the_fit_finds_each_videos_gravity_from_its_own_frames_and_videos_do_not_interact():
@@ -73,11 +75,8 @@ def test_zero_steps_keep_the_estimate_and_bad_settings_are_named():
 
 def test_the_progress_bar_counts_videos_across_chunks(capsys):
     frames = falling([-12.0, -9.0, -6.5])
-    b = frames.shape[0]
-    fit_to_own_frames(Ballistic(), frames, torch.ones(b, 5, 1), torch.full((b, 1), 0.5), torch.zeros(b, 1), torch.zeros(b, 10, 0, 4),
-                      torch.zeros(5, dtype=torch.bool), TestTimeFit(2), to_physical, chunk=2, progress=True)
+    fit(frames, 0.0, steps=2, chunk=2, progress=True)
     bar = capsys.readouterr().err
     assert "test-time fit (2 steps)" in bar and "3/3" in bar and "video" in bar
-    fit_to_own_frames(Ballistic(), frames, torch.ones(b, 5, 1), torch.full((b, 1), 0.5), torch.zeros(b, 1), torch.zeros(b, 10, 0, 4),
-                      torch.zeros(5, dtype=torch.bool), TestTimeFit(2), to_physical, chunk=2)
+    fit(frames, 0.0, steps=2, chunk=2)
     assert "test-time fit" not in capsys.readouterr().err  # off by default

@@ -70,7 +70,7 @@ def fit_to_own_frames(dynamics, positions, grouping, rigidness, params_normalise
             s = slice(i, i + chunk)
             parts.append(_fit_chunk(dynamics, positions[s].detach(), grouping[s].detach(), rigidness[s].detach(), params_normalised[s].detach(),
                                     planes[s], kinematic, fit, to_physical))
-            bar.update(len(parts[-1]["error_after"]))
+            bar.update(positions[s].shape[0])
     return {k: torch.cat([p[k] for p in parts]) for k in parts[0]}
 
 
