@@ -98,6 +98,31 @@ def test_parameter_sweep_from_proposals_starts_from_them_and_names_a_missing_fil
     assert from_proposals["future_mse_x1e4@10"] == from_truth["future_mse_x1e4@10"]  # the future MSE is unaffected
 
 
+def test_parameter_sweep_against_proposals_compares_the_rollouts_with_them(trained):
+    """task.param_sweep_target=proposals: the loss of a module trained without trajectories. Noisy targets
+    raise the L1 at every grid value; proposals equal to the truth give the truth's sweep to the digit."""
+    tmp, result = trained
+    base = (tmp, "task=evaluate_dynamics", f"ckpt_path={result['checkpoint']}", "task.rigidness_grid=0", "eval.max_rollouts=2")
+    test = load_split(tmp / "data", "rigid_fall", "test")
+    path = proposals_path(tmp / "data", "rigid_fall", "test")
+    logits = torch.zeros(*test.positions.shape[:3], 3)
+    write_proposals(path, Proposals(test.positions.clone(), logits, test.rollout_ids, {}))
+    truth = evaluate_dynamics(config(*base))
+    exact = evaluate_dynamics(config(*base, "task.param_sweep_history=proposals", "task.param_sweep_target=proposals"))
+    assert exact["param_sweep_target"] == "proposals" and truth["param_sweep_target"] == "truth"
+    assert exact["rollout_l1_over_grid/gravity"] == truth["rollout_l1_over_grid/gravity"]
+    torch.manual_seed(0)
+    write_proposals(path, Proposals(test.positions + 0.01 * torch.randn_like(test.positions), logits, test.rollout_ids, {}))
+    noisy = evaluate_dynamics(config(*base, "task.param_sweep_target=proposals"))
+    assert all(n > t for n, t in zip(noisy["rollout_l1_over_grid/gravity"], truth["rollout_l1_over_grid/gravity"]))
+    # proposals of the first frames only cannot be the targets: the error names the frames it needs
+    write_proposals(path, Proposals(test.positions[:, :5].clone(), logits[:, :5].clone(), test.rollout_ids, {}))
+    with pytest.raises(DatasetError, match=r"frames \d+\.\.\d+; re-export"):
+        evaluate_dynamics(config(*base, "task.param_sweep_target=proposals"))
+    with pytest.raises(ValueError, match="task.param_sweep_target='slots'"):
+        evaluate_dynamics(config(*base, "task.param_sweep_target=slots"))
+
+
 def test_parameter_sweep_rolls_every_instance_with_the_rigidness_asked_for(trained):
     """task.param_sweep_rigidness: the oracle of VGPL w/o rigidness (Q = 0) is another sweep than the
     true labels'; Q = 1 is RigidFall's truth (every cube rigid), so the same sweep to the digit."""

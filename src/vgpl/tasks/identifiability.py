@@ -57,42 +57,62 @@ def check_sweep_rigidness(value) -> float | None:
     return float(value)
 
 
+def check_sweep_frames(history: str, target: str) -> None:
+    """Refuse a ``task.param_sweep_history`` or ``task.param_sweep_target`` other than ``truth`` or ``proposals``."""
+    for key, value in (("history", history), ("target", target)):
+        if value not in ("truth", "proposals"):
+            raise ValueError(f"task.param_sweep_{key}={value!r}: expected 'truth' (the simulator's positions) or 'proposals' "
+                             "(the VisualPrior's exported test proposals)")
+
+
 def evaluate_identifiability(model: DynamicsPrior, scene: Scene, test: Rollouts, root: str, observed: int, horizon: int, grid: int,
                              max_rollouts: int | None = None, start_frame: int = 0, history: str = "truth", refine: int = 0,
-                             rigidness: float | None = None) -> dict:
+                             rigidness: float | None = None, target: str = "truth") -> dict:
     """``oracle_param_sweep`` on the first ``max_rollouts`` rollouts of the test split ``test``
     (read from ``root``), over the inference module's training window: ``observed`` frames from
     ``start_frame`` on plus ``horizon`` more, rolled from the first H, over ``grid`` values and then
     ``refine`` around each scene's best. ``history="proposals"``
     starts the rollouts from the VisualPrior's exported proposals instead of the true positions
-    (what an inference module without refinement would see). ``rigidness``: the Q every instance
-    is rolled with (None: the true labels; 0: the prior of VGPL w/o rigidness)."""
-    if history not in ("truth", "proposals"):
-        raise ValueError(f"task.param_sweep_history={history!r}: expected 'truth' or 'proposals'")
+    (what an inference module without refinement would see). ``target="proposals"`` compares the
+    rollouts with the proposals of the frames they roll into instead of the true positions (the loss
+    of ``rollout_target=proposals``, a module trained without trajectories). Actuated (kinematic)
+    particles stay where the actions put them in both, as the inference module places them.
+    ``rigidness``: the Q every instance is rolled with (None: the true labels; 0: the prior of VGPL
+    w/o rigidness)."""
+    check_sweep_frames(history, target)
     h = model.hparams.history
     positions, grouping, labels, params, planes, kinematic = inference_window(scene, test, observed, horizon, start_frame, max_rollouts)
     labels = labels if rigidness is None else torch.full_like(labels, rigidness)
     n, n_frames = positions.shape[:2]
-    if history == "proposals":
+    if "proposals" in (history, target):
         path = proposals_path(root, scene.name, "test")
         proposals = read_proposals(path, "last")  # the paper's proposals; the slots stay on disk
-        if proposals.positions.shape[0] < n or not torch.equal(proposals.rollout_ids[:n], test.rollout_ids[:n]) or proposals.positions.shape[1] < start_frame + h:
-            raise DatasetError(f"{path}: proposals do not cover the first {n} test rollouts' frames {start_frame}..{start_frame + h - 1}; re-export with task=export_proposals")
-        positions[:, :h] = proposals.positions[:n, start_frame : start_frame + h]
+        first = start_frame if history == "proposals" else start_frame + h
+        last = start_frame + (n_frames if target == "proposals" else h) - 1
+        if proposals.positions.shape[0] < n or not torch.equal(proposals.rollout_ids[:n], test.rollout_ids[:n]) or proposals.positions.shape[1] <= last:
+            raise DatasetError(f"{path}: proposals do not cover the first {n} test rollouts' frames {first}..{last}; re-export with task=export_proposals "
+                               "(model.inference.net.rollout_target=proposals exports the frames past the observed window too)")
+        seen = proposals.positions[:n, start_frame : start_frame + n_frames].to(positions)
+        frames = torch.zeros(n_frames, dtype=torch.bool)
+        frames[:h] = history == "proposals"
+        frames[h:] = target == "proposals"
+        positions = torch.where(frames[None, :, None, None] & ~kinematic[None, None, :, None], seen, positions)
     model.eval()
     return oracle_param_sweep(model, positions, grouping, labels, params, planes, kinematic, n_frames - h, grid, refine) | {"truth": params}
 
 
 def sweep_metrics(model: DynamicsPrior, scene: Scene, test: Rollouts, cfg: DictConfig, start_frame: int, out: Path, grid: int,
-                  max_rollouts: int | None, history: str = "truth", refine: int = 0, rigidness: float | None = None) -> dict:
+                  max_rollouts: int | None, history: str = "truth", refine: int = 0, rigidness: float | None = None,
+                  target: str = "truth") -> dict:
     """Run the sweep over ``cfg.model.inference``'s window from ``start_frame`` on and return its flat metrics
     (``oracle_param_mae_pct/<name>``, ``oracle_param_bias_pct/<name>``, ``grid_param_mae_pct/<name>``, ``midpoint_param_mae_pct/<name>``,
     ``rollout_l1_over_grid/<name>``);
     the scatter of oracle against truth goes to ``out/oracle_<name>.png``."""
     inf = cfg.model.inference
     sweep = evaluate_identifiability(model, scene, test, cfg.data.root, inf.observed, inf.net.horizon, grid, max_rollouts, start_frame, history, refine,
-                                     rigidness)
-    result: dict = {"param_sweep_history": history, "param_grid": grid, "param_grid_refine": refine, "param_sweep_rigidness": rigidness}
+                                     rigidness, target)
+    result: dict = {"param_sweep_history": history, "param_sweep_target": target, "param_grid": grid, "param_grid_refine": refine,
+                    "param_sweep_rigidness": rigidness}
     for j, name in enumerate(scene.param_names):
         result[f"oracle_param_mae_pct/{name}"] = float(sweep["oracle_param_mae_pct"][j])
         result[f"oracle_param_bias_pct/{name}"] = float(sweep["oracle_param_bias_pct"][j])

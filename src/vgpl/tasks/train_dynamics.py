@@ -21,6 +21,7 @@ from vgpl.eval.tensorboard_media import add_gif, rollout_video
 from vgpl.models.dynamics_prior import DynamicsPrior
 from vgpl.sim.scene import Scene
 from vgpl.tasks.identifiability import (
+    check_sweep_frames,
     check_sweep_rigidness,
     check_window_starts,
     gradient_agreement_by_start,
@@ -123,6 +124,7 @@ def evaluate_dynamics(cfg: DictConfig) -> dict:
         check_window_starts(starts, test.positions.shape[1], cfg.model.inference.observed, cfg.model.inference.net.horizon)
     q_grid = rigidness_grid_option(cfg.task.get("rigidness_grid"))  # so is a grid without both labels
     sweep_rigidness = check_sweep_rigidness(cfg.task.get("param_sweep_rigidness"))
+    check_sweep_frames(cfg.task.get("param_sweep_history", "truth"), cfg.task.get("param_sweep_target", "truth"))
     start = window_start(cfg.task.get("start_frame"), train_cfg.env.get("start_frame", 0), test.positions.shape[1])
     metrics, pred, truth = evaluate_rollouts(model, scene, test, cfg.eval.observed, cfg.eval.n_steps, cfg.eval.get("max_rollouts"), start)
     out = Path(cfg.paths.output_dir)
@@ -136,7 +138,7 @@ def evaluate_dynamics(cfg: DictConfig) -> dict:
     grid = int(cfg.task.get("param_grid", 0))
     if grid > 0:
         result |= sweep_metrics(model, scene, test, cfg, start, out, grid, cfg.eval.get("max_rollouts"), cfg.task.get("param_sweep_history", "truth"),
-                                int(cfg.task.get("param_grid_refine", 0)), sweep_rigidness)
+                                int(cfg.task.get("param_grid_refine", 0)), sweep_rigidness, cfg.task.get("param_sweep_target", "truth"))
         log.info("identifiability: %s", {k: v for k, v in result.items() if "param_mae" in k})
         write_metrics()
     if q_grid > 0:
