@@ -119,6 +119,7 @@ def test_parameter_sweep_against_proposals_compares_the_rollouts_with_them(train
     write_proposals(path, Proposals(test.positions[:, :5].clone(), logits[:, :5].clone(), test.rollout_ids, {}))
     with pytest.raises(DatasetError, match=r"frames \d+\.\.\d+; re-export"):
         evaluate_dynamics(config(*base, "task.param_sweep_target=proposals"))
+    assert evaluate_dynamics(config(*base, "task.param_sweep_history=proposals"))["param_sweep_history"] == "proposals"  # the start is there
     with pytest.raises(ValueError, match="task.param_sweep_target='slots'"):
         evaluate_dynamics(config(*base, "task.param_sweep_target=slots"))
 

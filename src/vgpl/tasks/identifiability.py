@@ -92,7 +92,9 @@ def evaluate_identifiability(model: DynamicsPrior, scene: Scene, test: Rollouts,
         if proposals.positions.shape[0] < n or not torch.equal(proposals.rollout_ids[:n], test.rollout_ids[:n]) or proposals.positions.shape[1] <= last:
             raise DatasetError(f"{path}: proposals do not cover the first {n} test rollouts' frames {first}..{last}; re-export with task=export_proposals "
                                "(model.inference.net.rollout_target=proposals exports the frames past the observed window too)")
-        seen = proposals.positions[:n, start_frame : start_frame + n_frames].to(positions)
+        seen = positions.clone()  # the proposals of the window's frames the file holds (those beyond ``last`` are not read)
+        held = proposals.positions[:n, start_frame : start_frame + n_frames]
+        seen[:, : held.shape[1]] = held.to(positions)
         frames = torch.zeros(n_frames, dtype=torch.bool)
         frames[:h] = history == "proposals"
         frames[h:] = target == "proposals"
