@@ -92,13 +92,8 @@ def evaluate_identifiability(model: DynamicsPrior, scene: Scene, test: Rollouts,
         if proposals.positions.shape[0] < n or not torch.equal(proposals.rollout_ids[:n], test.rollout_ids[:n]) or proposals.positions.shape[1] <= last:
             raise DatasetError(f"{path}: proposals do not cover the first {n} test rollouts' frames {first}..{last}; re-export with task=export_proposals "
                                "(model.inference.net.rollout_target=proposals exports the frames past the observed window too)")
-        seen = positions.clone()  # the proposals of the window's frames the file holds (those beyond ``last`` are not read)
-        held = proposals.positions[:n, start_frame : start_frame + n_frames]
-        seen[:, : held.shape[1]] = held.to(positions)
-        frames = torch.zeros(n_frames, dtype=torch.bool)
-        frames[:h] = history == "proposals"
-        frames[h:] = target == "proposals"
-        positions = torch.where(frames[None, :, None, None] & ~kinematic[None, None, :, None], seen, positions)
+        frames = slice(first - start_frame, last - start_frame + 1)  # the window's frames taken from the proposals, one contiguous run
+        positions[:, frames] = torch.where(kinematic[:, None], positions[:, frames], proposals.positions[:n, first : last + 1].to(positions))
     model.eval()
     return oracle_param_sweep(model, positions, grouping, labels, params, planes, kinematic, n_frames - h, grid, refine) | {"truth": params}
 

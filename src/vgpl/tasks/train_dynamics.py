@@ -124,7 +124,8 @@ def evaluate_dynamics(cfg: DictConfig) -> dict:
         check_window_starts(starts, test.positions.shape[1], cfg.model.inference.observed, cfg.model.inference.net.horizon)
     q_grid = rigidness_grid_option(cfg.task.get("rigidness_grid"))  # so is a grid without both labels
     sweep_rigidness = check_sweep_rigidness(cfg.task.get("param_sweep_rigidness"))
-    check_sweep_frames(cfg.task.get("param_sweep_history", "truth"), cfg.task.get("param_sweep_target", "truth"))
+    sweep_history, sweep_target = cfg.task.get("param_sweep_history", "truth"), cfg.task.get("param_sweep_target", "truth")
+    check_sweep_frames(sweep_history, sweep_target)
     start = window_start(cfg.task.get("start_frame"), train_cfg.env.get("start_frame", 0), test.positions.shape[1])
     metrics, pred, truth = evaluate_rollouts(model, scene, test, cfg.eval.observed, cfg.eval.n_steps, cfg.eval.get("max_rollouts"), start)
     out = Path(cfg.paths.output_dir)
@@ -137,8 +138,8 @@ def evaluate_dynamics(cfg: DictConfig) -> dict:
     write_gif(rollout_video(scene.camera, scene.instance, truth[0], pred[0]), out / "rollout_truth_vs_prediction.gif", fps=15)
     grid = int(cfg.task.get("param_grid", 0))
     if grid > 0:
-        result |= sweep_metrics(model, scene, test, cfg, start, out, grid, cfg.eval.get("max_rollouts"), cfg.task.get("param_sweep_history", "truth"),
-                                int(cfg.task.get("param_grid_refine", 0)), sweep_rigidness, cfg.task.get("param_sweep_target", "truth"))
+        result |= sweep_metrics(model, scene, test, cfg, start, out, grid, cfg.eval.get("max_rollouts"), sweep_history,
+                                int(cfg.task.get("param_grid_refine", 0)), sweep_rigidness, sweep_target)
         log.info("identifiability: %s", {k: v for k, v in result.items() if "param_mae" in k})
         write_metrics()
     if q_grid > 0:
