@@ -1,4 +1,4 @@
-"""The vertical-axis symmetry that param_rotation (InferenceModule) and symmetric_parameters.py rely on."""
+"""The vertical-axis symmetry that param_rotation (InferenceModule) relies on."""
 
 from __future__ import annotations
 
