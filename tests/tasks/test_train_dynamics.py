@@ -96,6 +96,12 @@ def test_parameter_sweep_from_proposals_starts_from_them_and_names_a_missing_fil
     # the same sweep, started 1 cm off: a higher rollout L1 at every grid value
     assert all(p > t for p, t in zip(from_proposals["rollout_l1_over_grid/gravity"], from_truth["rollout_l1_over_grid/gravity"]))
     assert from_proposals["future_mse_x1e4@10"] == from_truth["future_mse_x1e4@10"]  # the future MSE is unaffected
+    # the cubes' start frames fitted rigidly to their last frame's shape: another start, and it says so
+    rigid = evaluate_dynamics(config(tmp, "task=evaluate_dynamics", ckpt, "task.param_sweep_history=proposals_rigid"))
+    assert rigid["param_sweep_history"] == "proposals_rigid"
+    assert all(abs(r - p) > 1e-5 for r, p in zip(rigid["rollout_l1_over_grid/gravity"], from_proposals["rollout_l1_over_grid/gravity"]))
+    with pytest.raises(ValueError, match="task.param_sweep_history='rigid'"):
+        evaluate_dynamics(config(tmp, "task=evaluate_dynamics", ckpt, "task.param_sweep_history=rigid"))
 
 
 def test_parameter_sweep_against_proposals_compares_the_rollouts_with_them(trained):
@@ -111,6 +117,9 @@ def test_parameter_sweep_against_proposals_compares_the_rollouts_with_them(train
     exact = evaluate_dynamics(config(*base, "task.param_sweep_history=proposals", "task.param_sweep_target=proposals"))
     assert exact["param_sweep_target"] == "proposals" and truth["param_sweep_target"] == "truth"
     assert exact["rollout_l1_over_grid/gravity"] == truth["rollout_l1_over_grid/gravity"]
+    # the true cubes move rigidly, so fitting them rigidly to their last frame changes the sweep by rounding only
+    exact_rigid = evaluate_dynamics(config(*base, "task.param_sweep_history=proposals_rigid", "task.param_sweep_target=proposals"))
+    assert exact_rigid["rollout_l1_over_grid/gravity"] == pytest.approx(truth["rollout_l1_over_grid/gravity"], abs=2e-5)
     torch.manual_seed(0)
     write_proposals(path, Proposals(test.positions + 0.01 * torch.randn_like(test.positions), logits, test.rollout_ids, {}))
     noisy = evaluate_dynamics(config(*base, "task.param_sweep_target=proposals"))

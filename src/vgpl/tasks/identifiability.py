@@ -25,6 +25,7 @@ from vgpl.eval.figures import gradient_agreement_figure, params_figure, save
 from vgpl.eval.identifiability import oracle_param_sweep, param_gradient_agreement, rigidness_sweep
 from vgpl.models.dynamics_prior import DynamicsPrior
 from vgpl.sim.scene import Scene
+from vgpl.sim.shape_matching import shape_match
 from vgpl.tasks.stage import stage_checkpoint
 
 log = logging.getLogger(__name__)
@@ -58,11 +59,33 @@ def check_sweep_rigidness(value) -> float | None:
 
 
 def check_sweep_frames(history: str, target: str) -> None:
-    """Refuse a ``task.param_sweep_history`` or ``task.param_sweep_target`` other than ``truth`` or ``proposals``."""
-    for key, value in (("history", history), ("target", target)):
-        if value not in ("truth", "proposals"):
-            raise ValueError(f"task.param_sweep_{key}={value!r}: expected 'truth' (the simulator's positions) or 'proposals' "
-                             "(the VisualPrior's exported test proposals)")
+    """Refuse a ``task.param_sweep_history`` other than ``truth``, ``proposals`` or ``proposals_rigid``, or a
+    ``task.param_sweep_target`` other than ``truth`` or ``proposals``."""
+    if history not in ("truth", "proposals", "proposals_rigid"):
+        raise ValueError(f"task.param_sweep_history={history!r}: expected 'truth' (the simulator's positions), 'proposals' "
+                         "(the VisualPrior's exported test proposals) or 'proposals_rigid' (those, each rigid instance fitted "
+                         "rigidly to its shape in the last start frame)")
+    if target not in ("truth", "proposals"):
+        raise ValueError(f"task.param_sweep_target={target!r}: expected 'truth' (the simulator's positions) or 'proposals' "
+                         "(the VisualPrior's exported test proposals)")
+
+
+def rigid_start(frames: torch.Tensor, grouping: torch.Tensor, labels: torch.Tensor) -> torch.Tensor:
+    """Start frames [B, H, N, 3] with every rigid instance (labels [B, M] > 0.5; particles by grouping
+    [B, N, M]'s argmax) replaced in each frame by the best rigid motion (``shape_match``) of its shape
+    in the last frame; the other particles unchanged."""
+    out = frames.clone()
+    m = grouping.shape[-1]
+    for b in range(frames.shape[0]):
+        instance = grouping[b].argmax(-1)  # [N]
+        rigid_index = torch.nonzero(labels[b, instance] > 0.5).flatten()
+        if rigid_index.numel() == 0:
+            continue
+        last = frames[b, -1]
+        count = torch.zeros(m, dtype=last.dtype).index_add_(0, instance, torch.ones_like(last[:, 0])).clamp_min(1.0)
+        centroid = torch.zeros(m, 3, dtype=last.dtype).index_add_(0, instance, last) / count[:, None]
+        out[b] = shape_match(frames[b], last - centroid[instance], instance, rigid_index, m)[0]
+    return out
 
 
 def evaluate_identifiability(model: DynamicsPrior, scene: Scene, test: Rollouts, root: str, observed: int, horizon: int, grid: int,
@@ -73,7 +96,8 @@ def evaluate_identifiability(model: DynamicsPrior, scene: Scene, test: Rollouts,
     ``start_frame`` on plus ``horizon`` more, rolled from the first H, over ``grid`` values and then
     ``refine`` around each scene's best. ``history="proposals"``
     starts the rollouts from the VisualPrior's exported proposals instead of the true positions
-    (what an inference module without refinement would see). ``target="proposals"`` compares the
+    (what an inference module without refinement would see); ``"proposals_rigid"`` from those with every
+    rigid instance fitted rigidly to its shape in the last start frame (``rigid_start``). ``target="proposals"`` compares the
     rollouts with the proposals of the frames they roll into instead of the true positions (the loss
     of ``rollout_target=proposals``, a module trained without trajectories). Actuated (kinematic)
     particles stay where the actions put them in both, as the inference module places them.
@@ -84,16 +108,18 @@ def evaluate_identifiability(model: DynamicsPrior, scene: Scene, test: Rollouts,
     positions, grouping, labels, params, planes, kinematic = inference_window(scene, test, observed, horizon, start_frame, max_rollouts)
     labels = labels if rigidness is None else torch.full_like(labels, rigidness)
     n, n_frames = positions.shape[:2]
-    if "proposals" in (history, target):
+    if history != "truth" or target == "proposals":
         path = proposals_path(root, scene.name, "test")
         proposals = read_proposals(path, "last")  # the paper's proposals; the slots stay on disk
-        first = start_frame if history == "proposals" else start_frame + h
+        first = start_frame if history != "truth" else start_frame + h
         last = start_frame + (n_frames if target == "proposals" else h) - 1
         if proposals.positions.shape[0] < n or not torch.equal(proposals.rollout_ids[:n], test.rollout_ids[:n]) or proposals.positions.shape[1] <= last:
             raise DatasetError(f"{path}: proposals do not cover the first {n} test rollouts' frames {first}..{last}; re-export with task=export_proposals "
                                "(model.inference.net.rollout_target=proposals exports the frames past the observed window too)")
         frames = slice(first - start_frame, last - start_frame + 1)  # the window's frames taken from the proposals, one contiguous run
         positions[:, frames] = torch.where(kinematic[:, None], positions[:, frames], proposals.positions[:n, first : last + 1].to(positions))
+    if history == "proposals_rigid":
+        positions[:, :h] = torch.where(kinematic[:, None], positions[:, :h], rigid_start(positions[:, :h], grouping, labels))
     model.eval()
     return oracle_param_sweep(model, positions, grouping, labels, params, planes, kinematic, n_frames - h, grid, refine) | {"truth": params}
 
