@@ -15,6 +15,7 @@ from pathlib import Path
 
 import torch
 from omegaconf import DictConfig
+from torch.nn import functional as F
 
 from vgpl.checkpoint import load_stage, scene_of
 from vgpl.data.grounding import proposals_path
@@ -24,6 +25,7 @@ from vgpl.data.trajectories import Rollouts, load_split, true_window
 from vgpl.eval.figures import gradient_agreement_figure, params_figure, save
 from vgpl.eval.identifiability import oracle_param_sweep, param_gradient_agreement, rigidness_sweep
 from vgpl.models.dynamics_prior import DynamicsPrior
+from vgpl.nn.rigid import soft_centroids
 from vgpl.sim.scene import Scene
 from vgpl.sim.shape_matching import shape_match
 from vgpl.tasks.stage import stage_checkpoint
@@ -76,15 +78,13 @@ def rigid_start(frames: torch.Tensor, grouping: torch.Tensor, labels: torch.Tens
     in the last frame; the other particles unchanged."""
     out = frames.clone()
     m = grouping.shape[-1]
-    for b in range(frames.shape[0]):
-        instance = grouping[b].argmax(-1)  # [N]
-        rigid_index = torch.nonzero(labels[b, instance] > 0.5).flatten()
-        if rigid_index.numel() == 0:
-            continue
-        last = frames[b, -1]
-        count = torch.zeros(m, dtype=last.dtype).index_add_(0, instance, torch.ones_like(last[:, 0])).clamp_min(1.0)
-        centroid = torch.zeros(m, 3, dtype=last.dtype).index_add_(0, instance, last) / count[:, None]
-        out[b] = shape_match(frames[b], last - centroid[instance], instance, rigid_index, m)[0]
+    instance = grouping.argmax(-1)  # [B, N]
+    member = F.one_hot(instance, m).to(frames.dtype)  # [B, N, M]
+    offsets = frames[:, -1] - torch.einsum("bnm,bmc->bnc", member, soft_centroids(frames[:, -1], member))  # [B, N, 3]
+    for b in range(frames.shape[0]):  # shape_match takes one set of instances and offsets for its whole batch
+        rigid_index = torch.nonzero(labels[b, instance[b]] > 0.5).flatten()
+        if rigid_index.numel() > 0:
+            out[b] = shape_match(frames[b], offsets[b], instance[b], rigid_index, m)[0]
     return out
 
 
