@@ -13,11 +13,13 @@ from tests.conftest import REPO
 from tests.models.learning_rate_callbacks import BatchClock, LearningRates
 from vgpl.data.proposals import propose_videos
 from vgpl.data.vertical_symmetry import about_vertical
+from vgpl.eval.rollout import rollout_runs as inference_rollout_runs
 from vgpl.graph import own_radius_graph
 from vgpl.models.dynamics_prior import DynamicsPrior
 from vgpl.models.inference import InferenceModule
 from vgpl.models.step_learning_rate import annealed_fraction
 from vgpl.models.visual_prior import VisualPrior
+from vgpl.nn.rigid_start import rigid_start
 from vgpl.tasks.pipeline import ABLATIONS, ablation_config
 
 
@@ -547,3 +549,32 @@ def test_training_on_proposals_reads_no_trajectory_and_rolls_against_the_proposa
 def test_training_on_proposals_refuses_any_term_that_reads_the_trajectories(setting):
     with pytest.raises(ValueError, match="rollout_target='proposals' trains without the simulator's trajectories"):
         _modules(rollout_target="proposals", **{"refine_weight": 0.0, **setting})
+
+
+def test_rigid_fit_start_rolls_p_from_the_proposals_start_fitted_rigidly_by_the_modules_q(monkeypatch):
+    """rigid_fit_start=true: the run P learns from starts at the proposals' first frames with each instance
+    fitted rigidly (vgpl.nn.rigid_start) by the module's own G and Q, the refined run from the refined frames;
+    P still learns; the option refuses any setting where that start is not the proposals'."""
+    import vgpl.models.inference as inference
+
+    rolled = []
+    monkeypatch.setattr(inference, "rollout_runs", lambda dyn, runs, kinematic: rolled.extend(runs) or inference_rollout_runs(dyn, runs, kinematic))
+    torch.manual_seed(0)
+    _, inf = _modules(rollout_target="proposals", refine_weight=0.0, trajectory_start="both", rigid_fit_start=True)
+    batch = _batch()
+    batch["kinematic"][:, 0] = True
+    batch["target_proposals"] = torch.cat([batch["proposals"], torch.rand(2, 2, 24, 3)], 1)
+    batch["positions"][:, :, 1:] = float("nan")
+    inf._losses(batch)["loss"].backward()
+    assert float(inf.param_head.lins[-1].weight.grad.abs().sum()) > 0
+    h, kinematic = inf.dynamics.hparams.history, batch["kinematic"][0]
+    out = inf.infer(batch["proposals"], batch["logits"], kinematic)
+    known = torch.where(kinematic[None, None, :, None], batch["positions"][:, :h], batch["target_proposals"][:, :h])  # actuated: the actions'
+    fitted = torch.where(kinematic[None, None, :, None], known, rigid_start(known, out["grouping"], out["rigidness"]))
+    refined = torch.where(kinematic[None, None, :, None], batch["positions"][:, :h], out["positions"][:, :h])
+    starts = [run[0][:, :h].detach() for run in rolled]
+    assert len(starts) == 2 and torch.allclose(starts[1], fitted, atol=1e-6) and torch.allclose(starts[0], refined, atol=1e-6)
+    assert (fitted - batch["target_proposals"][:, :h]).abs()[:, :, 1:].max() > 0.05  # the fit moved the proposals
+    for bad in ({"rollout_target": "truth", "trajectory_start": "both"}, {"rollout_target": "proposals", "trajectory_start": "refined"}):
+        with pytest.raises(ValueError, match="rigid_fit_start=true fits the rigid instances of the proposals' start"):
+            _modules(refine_weight=0.0, rigid_fit_start=True, **bad)

@@ -40,7 +40,9 @@ trajectories. ``proposals``: the visual prior's particles of the same frames, sl
 visual prior gives every particle its own slot in every frame), so the module trains on unlabelled
 videos; nothing then reads the trajectories but the logged metrics (it needs refine_weight 0 and
 param_weight 0; the actuated particles are placed by the actions, as the Grounder places them).
-The "true" start of ``trajectory_start`` truth / both is then the proposals' own first frames, unrefined.
+The "true" start of ``trajectory_start`` truth / both is then the proposals' own first frames, unrefined;
+``rigid_fit_start`` fits each of its instances rigidly to its last-frame shape, weighted by the module's
+Q (``vgpl.nn.rigid_start``, detached), so P reads a rigid body's motion rather than the proposals' noise.
 
 Nothing supervises Q or P directly unless ``param_weight`` > 0: ``rigid_correct/<type>`` and
 ``param_mae_pct`` are logged against the truth, never trained on.
@@ -62,6 +64,7 @@ from vgpl.graph import edge_features, radius_graph
 from vgpl.models.step_learning_rate import AnnealedLearningRate
 from vgpl.nn.normalisation import NormalisationBuffers
 from vgpl.nn.propagation import EdgeEncoder, Propagator
+from vgpl.nn.rigid_start import rigid_start
 
 log = logging.getLogger(__name__)
 
@@ -151,6 +154,7 @@ class InferenceModule(AnnealedLearningRate, NormalisationBuffers, L.LightningMod
         bernoulli_from_step: int | None = None,
         training_scheme: str = "joint",
         rollout_target: str = "truth",
+        rigid_fit_start: bool = False,
     ) -> None:
         super().__init__()
         if param_rotation and not separate_param_net:
@@ -174,6 +178,9 @@ class InferenceModule(AnnealedLearningRate, NormalisationBuffers, L.LightningMod
             raise ValueError("InferenceModule: rollout_target='proposals' trains without the simulator's trajectories, so nothing may read them: "
                              "it needs training_scheme='joint', refine_weight=0 and param_weight=0 (got "
                              f"{training_scheme!r}, {refine_weight}, {param_weight})")
+        if rigid_fit_start and (rollout_target != "proposals" or trajectory_start not in ("truth", "both")):
+            raise ValueError("InferenceModule: rigid_fit_start=true fits the rigid instances of the proposals' start that P rolls from; it needs "
+                             f"rollout_target='proposals' and trajectory_start 'truth' or 'both' (got {rollout_target!r}, {trajectory_start!r})")
         for name, value in (("refined_steps", refined_steps), ("truth_steps", truth_steps)):
             if value is not None and value < 0:
                 raise ValueError(f"InferenceModule: {name}={value}, expected null (the window and horizon), 0 (no such run) or a number of frames")
@@ -352,8 +359,11 @@ class InferenceModule(AnnealedLearningRate, NormalisationBuffers, L.LightningMod
                 true_q = batch["rigid"].to(q) if self.hparams.rigidness else torch.zeros_like(q)
                 trajectories = {"rollout": (x[:, :h], g, q, p_dx), "rollout_from_truth": (truth[:, :h], batch["grouping"].to(g), true_q, p)}
             else:
-                trajectories = {"refined": {"rollout": (x[:, :h], g, q, p)}, "truth": {"rollout_from_truth": (truth[:, :h], g, q, p)},
-                                "both": {"rollout": (x[:, :h], g, q, p.detach()), "rollout_from_truth": (truth[:, :h], g, q, p)}}[mode]
+                start = truth[:, :h]
+                if self.hparams.rigid_fit_start:  # the proposals' start, each instance fitted rigidly by the module's Q
+                    start = torch.where(kinematic[None, None, :, None], start, rigid_start(start, g.detach(), q.detach()))
+                trajectories = {"refined": {"rollout": (x[:, :h], g, q, p)}, "truth": {"rollout_from_truth": (start, g, q, p)},
+                                "both": {"rollout": (x[:, :h], g, q, p.detach()), "rollout_from_truth": (start, g, q, p)}}[mode]
             # each run's length: refined_steps / truth_steps frames (null: the window and horizon; 0: no such run)
             steps = {"rollout": self.hparams.refined_steps, "rollout_from_truth": self.hparams.truth_steps}
             steps = {name: n_roll if steps[name] is None else steps[name] for name in trajectories}

@@ -15,7 +15,6 @@ from pathlib import Path
 
 import torch
 from omegaconf import DictConfig
-from torch.nn import functional as F
 
 from vgpl.checkpoint import load_stage, scene_of
 from vgpl.data.grounding import proposals_path
@@ -25,9 +24,8 @@ from vgpl.data.trajectories import Rollouts, load_split, true_window
 from vgpl.eval.figures import gradient_agreement_figure, params_figure, save
 from vgpl.eval.identifiability import oracle_param_sweep, param_gradient_agreement, rigidness_sweep
 from vgpl.models.dynamics_prior import DynamicsPrior
-from vgpl.nn.rigid import soft_centroids
+from vgpl.nn.rigid_start import rigid_start
 from vgpl.sim.scene import Scene
-from vgpl.sim.shape_matching import shape_match
 from vgpl.tasks.stage import stage_checkpoint
 
 log = logging.getLogger(__name__)
@@ -72,22 +70,6 @@ def check_sweep_frames(history: str, target: str) -> None:
                          "(the VisualPrior's exported test proposals)")
 
 
-def rigid_start(frames: torch.Tensor, grouping: torch.Tensor, labels: torch.Tensor) -> torch.Tensor:
-    """Start frames [B, H, N, 3] with every rigid instance (labels [B, M] > 0.5; particles by grouping
-    [B, N, M]'s argmax) replaced in each frame by the best rigid motion (``shape_match``) of its shape
-    in the last frame; the other particles unchanged."""
-    out = frames.clone()
-    m = grouping.shape[-1]
-    instance = grouping.argmax(-1)  # [B, N]
-    member = F.one_hot(instance, m).to(frames.dtype)  # [B, N, M]
-    offsets = frames[:, -1] - torch.einsum("bnm,bmc->bnc", member, soft_centroids(frames[:, -1], member))  # [B, N, 3]
-    for b in range(frames.shape[0]):  # shape_match takes one set of instances and offsets for its whole batch
-        rigid_index = torch.nonzero(labels[b, instance[b]] > 0.5).flatten()
-        if rigid_index.numel() > 0:
-            out[b] = shape_match(frames[b], offsets[b], instance[b], rigid_index, m)[0]
-    return out
-
-
 def evaluate_identifiability(model: DynamicsPrior, scene: Scene, test: Rollouts, root: str, observed: int, horizon: int, grid: int,
                              max_rollouts: int | None = None, start_frame: int = 0, history: str = "truth", refine: int = 0,
                              rigidness: float | None = None, target: str = "truth") -> dict:
@@ -119,7 +101,7 @@ def evaluate_identifiability(model: DynamicsPrior, scene: Scene, test: Rollouts,
         frames = slice(first - start_frame, last - start_frame + 1)  # the window's frames taken from the proposals, one contiguous run
         positions[:, frames] = torch.where(kinematic[:, None], positions[:, frames], proposals.positions[:n, first : last + 1].to(positions))
     if history == "proposals_rigid":
-        positions[:, :h] = torch.where(kinematic[:, None], positions[:, :h], rigid_start(positions[:, :h], grouping, labels))
+        positions[:, :h] = torch.where(kinematic[:, None], positions[:, :h], rigid_start(positions[:, :h], grouping, (labels > 0.5).to(positions)))
     model.eval()
     return oracle_param_sweep(model, positions, grouping, labels, params, planes, kinematic, n_frames - h, grid, refine) | {"truth": params}
 

@@ -1,4 +1,4 @@
-"""rigid_start: the sweep's start frames with each rigid instance fitted rigidly to its last-frame shape."""
+"""rigid_start: start frames with each instance fitted rigidly to its last-frame shape, by its rigidness."""
 
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ import math
 
 import torch
 
-from vgpl.tasks.identifiability import rigid_start
+from vgpl.nn.rigid_start import rigid_start
 
 
 def turned(points: torch.Tensor, angle: float, shift: list[float]) -> torch.Tensor:
@@ -42,3 +42,24 @@ def test_a_rigid_motion_is_kept_and_free_particles_are_untouched():
 def test_nothing_rigid_leaves_the_frames_as_they_are():
     frames, grouping, _ = scene()
     assert torch.equal(rigid_start(frames, grouping, torch.zeros(1, 2)), frames)
+
+
+def test_rigidness_blends_the_fit_with_the_frames_as_they_came():
+    frames, grouping, labels = scene()
+    noisy = frames + 0.01 * torch.randn_like(frames)
+    fitted = rigid_start(noisy, grouping, labels)
+    half = rigid_start(noisy, grouping, torch.tensor([[0.5, 0.0]]))
+    assert torch.allclose(half[:, :, :8], 0.5 * (fitted[:, :, :8] + noisy[:, :, :8]), atol=1e-6)
+    # a free instance given rigidness 1 is fitted too: its particles keep their last-frame distances
+    both = rigid_start(noisy, grouping, torch.ones(1, 2))
+    assert torch.allclose(torch.cdist(both[0, 0, 8:], both[0, 0, 8:]), torch.cdist(noisy[0, -1, 8:], noisy[0, -1, 8:]), atol=1e-5)
+    assert torch.equal(both[:, :, :8], fitted[:, :, :8])
+
+
+def test_the_fit_carries_no_gradient_and_keeps_float32_under_bf16_autocast():
+    frames, grouping, labels = scene()
+    noisy = (frames + 0.01 * torch.randn_like(frames)).requires_grad_(True)
+    with torch.autocast("cpu", dtype=torch.bfloat16):
+        out = rigid_start(noisy, grouping, labels)
+    assert not out.requires_grad and out.dtype == torch.float32
+    assert torch.allclose(out, rigid_start(noisy.detach(), grouping, labels))
