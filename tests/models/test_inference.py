@@ -553,7 +553,7 @@ def test_training_on_proposals_refuses_any_term_that_reads_the_trajectories(sett
 
 def test_rigid_fit_start_rolls_p_from_the_proposals_start_fitted_rigidly_by_the_modules_q(monkeypatch):
     """rigid_fit_start=true: the run P learns from starts at the proposals' first frames with each instance
-    fitted rigidly (vgpl.nn.rigid_start) by the module's own G and Q, the refined run from the refined frames;
+    the module's Q calls rigid (> 0.5) fitted rigidly (vgpl.nn.rigid_start) by its G, the refined run from the refined frames;
     P still learns; the option refuses any setting where that start is not the proposals'."""
     import vgpl.models.inference as inference
 
@@ -570,7 +570,7 @@ def test_rigid_fit_start_rolls_p_from_the_proposals_start_fitted_rigidly_by_the_
     h, kinematic = inf.dynamics.hparams.history, batch["kinematic"][0]
     out = inf.infer(batch["proposals"], batch["logits"], kinematic)
     known = torch.where(kinematic[None, None, :, None], batch["positions"][:, :h], batch["target_proposals"][:, :h])  # actuated: the actions'
-    fitted = torch.where(kinematic[None, None, :, None], known, rigid_start(known, out["grouping"], out["rigidness"]))
+    fitted = torch.where(kinematic[None, None, :, None], known, rigid_start(known, out["grouping"], (out["rigidness"] > 0.5).float()))
     refined = torch.where(kinematic[None, None, :, None], batch["positions"][:, :h], out["positions"][:, :h])
     starts = [run[0][:, :h].detach() for run in rolled]
     assert len(starts) == 2 and torch.allclose(starts[1], fitted, atol=1e-6) and torch.allclose(starts[0], refined, atol=1e-6)

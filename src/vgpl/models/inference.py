@@ -41,8 +41,9 @@ visual prior gives every particle its own slot in every frame), so the module tr
 videos; nothing then reads the trajectories but the logged metrics (it needs refine_weight 0 and
 param_weight 0; the actuated particles are placed by the actions, as the Grounder places them).
 The "true" start of ``trajectory_start`` truth / both is then the proposals' own first frames, unrefined;
-``rigid_fit_start`` fits each of its instances rigidly to its last-frame shape, weighted by the module's
-Q (``vgpl.nn.rigid_start``, detached), so P reads a rigid body's motion rather than the proposals' noise.
+``rigid_fit_start`` fits each instance the module's Q calls rigid (Q > 0.5) rigidly to its last-frame shape
+(``vgpl.nn.rigid_start``, by the module's G; no gradient), so P reads a rigid body's motion rather than
+the proposals' noise.
 
 Nothing supervises Q or P directly unless ``param_weight`` > 0: ``rigid_correct/<type>`` and
 ``param_mae_pct`` are logged against the truth, never trained on.
@@ -360,8 +361,8 @@ class InferenceModule(AnnealedLearningRate, NormalisationBuffers, L.LightningMod
                 trajectories = {"rollout": (x[:, :h], g, q, p_dx), "rollout_from_truth": (truth[:, :h], batch["grouping"].to(g), true_q, p)}
             else:
                 start = truth[:, :h]
-                if self.hparams.rigid_fit_start:  # the proposals' start, each instance fitted rigidly by the module's Q
-                    start = torch.where(kinematic[None, None, :, None], start, rigid_start(start, g.detach(), q.detach()))
+                if self.hparams.rigid_fit_start:  # the proposals' start, each instance the module's Q calls rigid fitted rigidly
+                    start = torch.where(kinematic[None, None, :, None], start, rigid_start(start, g.detach(), (q > 0.5).to(q)))
                 trajectories = {"refined": {"rollout": (x[:, :h], g, q, p)}, "truth": {"rollout_from_truth": (start, g, q, p)},
                                 "both": {"rollout": (x[:, :h], g, q, p.detach()), "rollout_from_truth": (start, g, q, p)}}[mode]
             # each run's length: refined_steps / truth_steps frames (null: the window and horizon; 0: no such run)
