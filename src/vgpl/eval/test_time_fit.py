@@ -7,7 +7,9 @@ The amortised estimate (the inference module's) is the start. The prior is rolle
 that rollout and the refined frames, in units of the prior's displacement std, over the movable
 particles. P is optimised as tanh(u) over its normalised range, so it never leaves the range; Q as
 sigmoid(v). Each video has its own P and Q, and Adam is elementwise, so videos fitted together
-in one batch do not affect each other.
+in one batch do not affect each other. ``rigid_start`` first fits each instance the amortised Q
+calls rigid (Q > 0.5) rigidly over the start frames (``vgpl.nn.rigid_start``), so the prior rolls
+from one body's motion rather than the refined frames' frame-to-frame noise.
 """
 
 from __future__ import annotations
@@ -18,16 +20,19 @@ import torch
 from tqdm.auto import tqdm
 
 from vgpl.eval.rollout import rollout
+from vgpl.nn.rigid_start import rigid_start
 
 
 @dataclass
 class TestTimeFit:
     """The fit's settings: ``steps`` Adam steps (0: off) at rate ``lr`` on the pre-activations of
-    P and, with ``rigidness``, of Q."""
+    P and, with ``rigidness``, of Q; ``rigid_start``: roll from the start frames with each instance the
+    amortised Q calls rigid fitted rigidly."""
 
     steps: int = 0
     lr: float = 0.05
     rigidness: bool = True
+    rigid_start: bool = False
 
     __test__ = False  # not a pytest class
 
@@ -83,7 +88,7 @@ def refit_inferred(out: dict, inference, dynamics, positions, planes, kinematic,
     shows a bar over the videos. Returns ``fit_to_own_frames``' result."""
     fit_q = bool(fit.rigidness and rigidness and inference.estimator == "blend")
     fitted = fit_to_own_frames(dynamics, positions, out["grouping"], out["rigidness_prob"], out["params_normalised"], planes, kinematic,
-                               TestTimeFit(fit.steps, fit.lr, fit_q), inference.to_physical, chunk, progress)
+                               TestTimeFit(fit.steps, fit.lr, fit_q, fit.rigid_start), inference.to_physical, chunk, progress)
     out["params_normalised"], out["params"] = fitted["params_normalised"], inference.to_physical(fitted["params_normalised"])
     if fit_q:
         out["rigidness_prob"], out["rigidness"] = fitted["rigidness"], inference.prior_rigidness(fitted["rigidness"])
@@ -91,6 +96,10 @@ def refit_inferred(out: dict, inference, dynamics, positions, planes, kinematic,
 
 
 def _fit_chunk(dynamics, positions, grouping, rigidness, params_normalised, planes, kinematic, fit: TestTimeFit, to_physical) -> dict:
+    if fit.rigid_start:  # the start frames, each instance the amortised Q calls rigid moved as one body; the targets as they are
+        h = dynamics.hparams.history
+        fitted = rigid_start(positions[:, :h], grouping, (rigidness > 0.5).to(positions))
+        positions = torch.cat([torch.where(kinematic[None, None, :, None], positions[:, :h], fitted), positions[:, h:]], 1)
     eps = 1e-4
     u = torch.atanh(params_normalised.clamp(-1 + eps, 1 - eps)).clone().requires_grad_(True)
     v = torch.logit(rigidness.clamp(eps, 1 - eps)).clone().requires_grad_(fit.rigidness)
