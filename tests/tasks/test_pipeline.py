@@ -436,7 +436,7 @@ def test_a_test_time_fit_is_a_row_of_its_own_with_its_cost_per_video(tiny, tmp_p
     tmp, _ = tiny
     fitted = evaluate(config(tmp, "task=evaluate", "eval.test_time_fit.steps=20", f"paths.output_dir={tmp_path}/fit/full"))
     full = json.loads((tmp / "run/evaluate/full/metrics.json").read_text())
-    assert fitted["test_time_fit"] == {"steps": 20, "lr": 0.05, "rigidness": True} and fitted["test_time_fit_seconds_per_video"] > 0
+    assert fitted["test_time_fit"] == {"steps": 20, "lr": 0.05, "rigidness": True, "rigid_start": False} and fitted["test_time_fit_seconds_per_video"] > 0
     assert fitted["own_frames_error_after_fit"] < fitted["own_frames_error_before_fit"]
     assert fitted["param_mae_pct"] != full["param_mae_pct"]
     assert fitted["refine_mse_x1e4_after"] == pytest.approx(full["refine_mse_x1e4_after"], rel=1e-6)
