@@ -63,3 +63,13 @@ def test_the_fit_carries_no_gradient_and_keeps_float32_under_bf16_autocast():
         out = rigid_start(noisy, grouping, labels)
     assert not out.requires_grad and out.dtype == torch.float32
     assert torch.allclose(out, rigid_start(noisy.detach(), grouping, labels))
+
+
+def test_actuated_particles_take_part_in_the_fit_and_keep_their_positions():
+    frames, grouping, labels = scene()
+    noisy = frames + 0.01 * torch.randn_like(frames)
+    kinematic = torch.zeros(12, dtype=torch.bool)
+    kinematic[0] = True
+    out = rigid_start(noisy, grouping, labels, kinematic)
+    assert torch.equal(out[:, :, 0], noisy[:, :, 0])
+    assert torch.equal(out[:, :, 1:], rigid_start(noisy, grouping, labels)[:, :, 1:])

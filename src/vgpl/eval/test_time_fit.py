@@ -98,8 +98,7 @@ def refit_inferred(out: dict, inference, dynamics, positions, planes, kinematic,
 def _fit_chunk(dynamics, positions, grouping, rigidness, params_normalised, planes, kinematic, fit: TestTimeFit, to_physical) -> dict:
     if fit.rigid_start:  # the start frames, each instance the amortised Q calls rigid moved as one body; the targets as they are
         h = dynamics.hparams.history
-        fitted = rigid_start(positions[:, :h], grouping, (rigidness > 0.5).to(positions))
-        positions = torch.cat([torch.where(kinematic[None, None, :, None], positions[:, :h], fitted), positions[:, h:]], 1)
+        positions = torch.cat([rigid_start(positions[:, :h], grouping, (rigidness > 0.5).to(positions), kinematic), positions[:, h:]], 1)
     eps = 1e-4
     u = torch.atanh(params_normalised.clamp(-1 + eps, 1 - eps)).clone().requires_grad_(True)
     v = torch.logit(rigidness.clamp(eps, 1 - eps)).clone().requires_grad_(fit.rigidness)

@@ -362,7 +362,7 @@ class InferenceModule(AnnealedLearningRate, NormalisationBuffers, L.LightningMod
             else:
                 start = truth[:, :h]
                 if self.hparams.rigid_fit_start:  # the proposals' start, each instance the module's Q calls rigid fitted rigidly
-                    start = torch.where(kinematic[None, None, :, None], start, rigid_start(start, g.detach(), (q > 0.5).to(q)))
+                    start = rigid_start(start, g.detach(), (q > 0.5).to(q), kinematic)
                 trajectories = {"refined": {"rollout": (x[:, :h], g, q, p)}, "truth": {"rollout_from_truth": (start, g, q, p)},
                                 "both": {"rollout": (x[:, :h], g, q, p.detach()), "rollout_from_truth": (start, g, q, p)}}[mode]
             # each run's length: refined_steps / truth_steps frames (null: the window and horizon; 0: no such run)

@@ -101,7 +101,7 @@ def evaluate_identifiability(model: DynamicsPrior, scene: Scene, test: Rollouts,
         frames = slice(first - start_frame, last - start_frame + 1)  # the window's frames taken from the proposals, one contiguous run
         positions[:, frames] = torch.where(kinematic[:, None], positions[:, frames], proposals.positions[:n, first : last + 1].to(positions))
     if history == "proposals_rigid":
-        positions[:, :h] = torch.where(kinematic[:, None], positions[:, :h], rigid_start(positions[:, :h], grouping, (labels > 0.5).to(positions)))
+        positions[:, :h] = rigid_start(positions[:, :h], grouping, (labels > 0.5).to(positions), kinematic)
     model.eval()
     return oracle_param_sweep(model, positions, grouping, labels, params, planes, kinematic, n_frames - h, grid, refine) | {"truth": params}
 
