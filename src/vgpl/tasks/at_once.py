@@ -7,13 +7,12 @@ on one thread each finish more steps in the same minutes than the two trained on
 
 from __future__ import annotations
 
-import multiprocessing
 from collections.abc import Callable
-from concurrent.futures import ProcessPoolExecutor
 
 from omegaconf import DictConfig
 
 from vgpl.allocator import keep_freed_memory
+from vgpl.workers import worker_pool
 
 
 def threads_each(threads: int, jobs: int) -> int:
@@ -26,9 +25,9 @@ def run_at_once(fn: Callable[[DictConfig], dict], configs: dict[str, DictConfig]
 
     ``fn`` must be importable (a module-level function) and each config resolved (no ``${hydra:...}``):
     a child process has no Hydra run. Each child keeps freed memory as run_task does where every config
-    asks for it (``keep_freed_memory``). The first failure is raised here, after the others end."""
-    context = multiprocessing.get_context("spawn")
+    asks for it (``keep_freed_memory``), and ends with this process (``vgpl.workers``). The first failure
+    is raised here, after the others end."""
     keep = all(c.get("keep_freed_memory", False) for c in configs.values())
-    with ProcessPoolExecutor(max_workers=len(configs), mp_context=context, initializer=keep_freed_memory if keep else None) as pool:
+    with worker_pool(len(configs), keep_freed_memory if keep else None) as pool:
         jobs = {name: pool.submit(fn, c) for name, c in configs.items()}
         return {name: job.result() for name, job in jobs.items()}

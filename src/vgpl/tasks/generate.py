@@ -14,10 +14,9 @@ import hashlib
 import json
 import logging
 import math
-import multiprocessing
 import tempfile
 import time
-from concurrent.futures import ProcessPoolExecutor, as_completed
+from concurrent.futures import as_completed
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -30,6 +29,7 @@ from tqdm import tqdm
 from vgpl.data.dataset_claim import DatasetClaim
 from vgpl.data.shard import Shard, shard_is_complete, write_shard
 from vgpl.sim.scene import Scene
+from vgpl.workers import worker_pool
 
 log = logging.getLogger(__name__)
 
@@ -180,8 +180,7 @@ def generate(cfg: DictConfig) -> dict:
             for plan in todo:
                 make_shard(cfg, plan, digest, int(cfg.threads), bar)
         else:
-            context = multiprocessing.get_context("spawn")  # no forked torch thread pools
-            with ProcessPoolExecutor(max_workers=data.processes, mp_context=context) as pool:
+            with worker_pool(data.processes) as pool:  # spawned, each ending with this process
                 jobs = [pool.submit(make_shard, cfg, plan, digest, 1) for plan in todo]
                 for job in as_completed(jobs):
                     bar.update(len(job.result().rollouts))
