@@ -6,6 +6,8 @@ from __future__ import annotations
 import subprocess
 import sys
 
+import pytest
+
 CYCLES = """
 import resource, sys, torch
 from vgpl.allocator import keep_freed_memory
@@ -30,6 +32,7 @@ def page_faults(mode: str) -> int:
 PAGES_PER_CYCLE = 20 * (8 << 20) // 4096
 
 
+@pytest.mark.slow  # starts several processes
 def test_freed_tensors_are_reused_without_page_faults():
     default, kept = page_faults("default"), page_faults("keep")
     assert default >= PAGES_PER_CYCLE  # by default at least one cycle's 160 MB is unmapped and faulted in again

@@ -30,6 +30,7 @@ def threads_and_process(c) -> dict:
     return {"name": c.name, "threads": torch.get_num_threads(), "pid": os.getpid()}
 
 
+@pytest.mark.slow  # starts several processes (18 to 21 s on a slow 2-core CPU)
 def test_each_config_runs_in_its_own_process_with_its_threads_and_a_failure_is_raised():
     configs = {n: OmegaConf.create({"name": n, "threads": 1, "fail": False}) for n in ("full", "no_rigidness")}
     out = run_at_once(threads_and_process, configs)

@@ -81,6 +81,7 @@ def test_evaluation_from_the_checkpoint_alone_reproduces_the_numbers(trained):
     assert 0 <= again["rigidness_truth_preferred/cube"] <= 1 and 0 <= again["rigidness_oracle_correct/cube"] <= 1
 
 
+@pytest.mark.slow  # five evaluations of the prior
 def test_parameter_sweep_from_proposals_starts_from_them_and_names_a_missing_file(trained):
     tmp, result = trained
     ckpt = f"ckpt_path={result['checkpoint']}"
@@ -104,6 +105,7 @@ def test_parameter_sweep_from_proposals_starts_from_them_and_names_a_missing_fil
         evaluate_dynamics(config(tmp, "task=evaluate_dynamics", ckpt, "task.param_sweep_history=rigid"))
 
 
+@pytest.mark.slow  # seven evaluations of the prior
 def test_parameter_sweep_against_proposals_compares_the_rollouts_with_them(trained):
     """task.param_sweep_target=proposals: the loss of a module trained without trajectories. Noisy targets
     raise the L1 at every grid value; proposals equal to the truth give the truth's sweep to the digit."""
@@ -430,6 +432,7 @@ def test_ddp_on_two_cpu_processes_matches_single_process_training(tmp_path):
     assert abs(ddp - single) < 0.05 * single
 
 
+@pytest.mark.slow  # several sweeps of the prior
 def test_identifiability_gate_writes_its_sweep_and_warns_or_stops(trained, caplog):
     import json
 
