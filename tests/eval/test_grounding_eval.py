@@ -161,7 +161,9 @@ def test_pooled_windows_give_the_same_numbers_from_the_videos_and_from_the_expor
     read = evaluate_grounding(dyn, None, inf, scene, dataclasses.replace(test, images=None), _ablation(), exported=exported,
                               window_pool="mean", **KWARGS)
     _assert_same_metrics(read.metrics, by_video.metrics)
-    assert by_video.rigidness_curve == pytest.approx(read.rigidness_curve)
+    assert by_video.rigidness_curve.keys() == read.rigidness_curve.keys()
+    for name, curve in read.rigidness_curve.items():  # approx() compares flat dicts and sequences only
+        assert by_video.rigidness_curve[name] == pytest.approx(curve)
     pooled = pool_windows(exported[0][:, :6], exported[2][:, :6], "mean")
     before = ((pooled - test.positions[:, :6]) ** 2).mean() * 1e4  # rigid_fall has no kinematic particles
     assert by_video.metrics["refine_mse_x1e4_before"] == pytest.approx(float(before), rel=1e-5)
