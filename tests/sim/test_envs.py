@@ -105,3 +105,20 @@ def test_the_larger_presets_train_the_visual_prior_on_every_video_streamed(exper
     if experiment != "quick":
         assert cfg.model.visual.max_rollouts is None
     assert cfg.model.densephysnet.stream_video is (experiment == "paper")  # the standard baseline holds its 200 videos
+
+
+def test_rigid_falls_layout_draws_what_the_authors_generator_draws():
+    """Cube j's lattice corner at x, z ~ U(0, 0.1) and y ~ U(b_j, b_j + 0.01), b = 0.09, 0.30, 0.51,
+    with no rotation: the cubes start stacked one contact distance apart (the authors' data.py)."""
+    scene = make_scene("rigid_fall")
+    samples = [scene.sample(np.random.default_rng(s)) for s in range(400)]
+    cubes = np.stack([s.positions for s in samples]).reshape(400, 3, 64, 3)
+    corner = cubes.min(2) - scene.spacing / 2  # the lattice's corner: half a spacing outside its lowest particles
+    for j, b in enumerate((0.09, 0.30, 0.51)):
+        for axis, (lo, hi) in enumerate([(0.0, 0.1), (b, b + 0.01), (0.0, 0.1)]):
+            drawn = corner[:, j, axis]
+            assert lo - 1e-6 <= drawn.min() and drawn.max() <= hi + 1e-6
+            assert abs(drawn.mean() - (lo + hi) / 2) < 0.06 * (hi - lo) and drawn.std() == pytest.approx((hi - lo) / np.sqrt(12), rel=0.1)
+    np.testing.assert_allclose(cubes - cubes.mean(2, keepdims=True), np.broadcast_to(scene.cube, cubes.shape), atol=1e-6)  # unrotated
+    gaps = cubes[:, 1:, :, 1].min(-1) - cubes[:, :-1, :, 1].max(-1)  # between stacked particle layers
+    assert gaps.min() >= 0.05 - 1e-6 and gaps.max() <= 0.07 + 1e-6

@@ -35,7 +35,7 @@ def test_perfect_proposals_give_gravity_exactly_and_noisy_ones_less_so_the_more_
     export_proposals(config(data, "task=export_proposals", "task.source=truth"))
     exact = free_fall_gravity(config(data, "task=free_fall_gravity", "task.error_scales=[1.0]"))
     assert exact["fits"][0]["proposal_mse_x1e4"] == 0 and exact["fits"][0]["gravity_mae_pct"] < 1e-2  # float32 files
-    assert exact["fits"][0]["calibration"] == pytest.approx([0.0, 1.0], abs=1e-3)  # float32 files
+    assert exact["fits"][0]["calibration"] == pytest.approx([0.0, 1.0], abs=2e-3)  # float32 files, 7 frames: within 0.02% of gravity
     assert exact["midpoint_gravity_mae_pct"] > 5  # the reference a constant scores
 
     export_proposals(config(data, "task=export_proposals", "task.source=truth", "task.noise_std=0.01"))
@@ -46,7 +46,7 @@ def test_perfect_proposals_give_gravity_exactly_and_noisy_ones_less_so_the_more_
     assert fits[1]["proposal_mse_x1e4"] == pytest.approx(fits[0]["proposal_mse_x1e4"] / 4)
     assert fits[0]["gravity_mae_pct"] > fits[1]["gravity_mae_pct"] > fits[2]["gravity_mae_pct"] == pytest.approx(0, abs=1e-2)
     written = json.loads((data / "run/metrics.json").read_text())
-    assert written["fits"] == fits and written["frames"] == 10 and written["n_test"] == 3 and written["n_train"] == 3
+    assert written["fits"] == fits and written["frames"] == 7 and written["n_test"] == 3 and written["n_train"] == 3
     assert "| 0.5 |" in (data / "run/free_fall_gravity.md").read_text()
 
 

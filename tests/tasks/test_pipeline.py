@@ -220,7 +220,7 @@ def test_checkpoint_of_another_env_or_particle_count_is_refused(tiny, tmp_path):
     with pytest.raises(CheckpointError, match="a vgpl.models.visual_prior.VisualPrior checkpoint, expected vgpl.models.dynamics_prior.DynamicsPrior"):
         evaluate(config(tmp, "task=evaluate", f"ckpt.dynamics={visual}", f"paths.output_dir={tmp_path}"))
     with pytest.raises(CheckpointError, match="trained for 192 particles, the data has 128"):
-        evaluate(config(tmp, "task=evaluate", "+env.scene.n_cubes=2", f"paths.output_dir={tmp_path}"))
+        evaluate(config(tmp, "task=evaluate", "env.scene.levels=[0.09,0.30]", f"paths.output_dir={tmp_path}"))
     with pytest.raises(CheckpointError, match="nope.ckpt: no such checkpoint"):
         evaluate(config(tmp, "task=evaluate", f"ckpt.inference={tmp_path}/nope.ckpt", f"paths.output_dir={tmp_path}"))
     with pytest.raises(CheckpointError, match="nope_no_rigidness.ckpt: no such checkpoint"):  # its own key, not passed over for a default path

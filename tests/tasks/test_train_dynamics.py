@@ -322,7 +322,7 @@ def test_a_bad_batch_size_is_refused_by_its_key_before_anything_is_written(train
 
 def test_checkpoint_on_a_dataset_with_another_particle_count_is_named(trained, tmp_path):
     _, result = trained
-    generate(config(tmp_path, "task=generate", "+env.scene.n_cubes=2"))  # 128 particles
+    generate(config(tmp_path, "task=generate", "env.scene.levels=[0.09,0.30]"))  # 128 particles
     with pytest.raises(DatasetError, match="128 particles.*expects 192"):
         evaluate_dynamics(config(tmp_path, "task=evaluate_dynamics", f"ckpt_path={result['checkpoint']}"))
 
@@ -593,6 +593,29 @@ def test_the_unconstrained_prior_trains_into_its_own_folder_and_no_rigidness_unc
     assert record["checkpoints"]["dynamics"] == str(tmp / "ckpt/dynamics_unconstrained/last.ckpt")
     assert "| VGPL w/o rigidness (unconstrained prior) |" in (tmp / "run/report.md").read_text()
 
+
+def test_the_authors_flex_rollouts_can_stand_in_for_the_test_split(trained, tmp_path):
+    """task.flex_rollouts: the same rollouts written in the authors' packed layout (a floor row after
+    the particles, gravity at scene_params[1]) give the test split's numbers, with the no-motion
+    guess's error beside the prior's."""
+    import h5py
+    import numpy as np
+
+    tmp, result = trained
+    test = load_split(tmp / "data", "rigid_fall", "test")
+    with h5py.File(tmp_path / "flex.h5", "w") as f:
+        for k in range(test.positions.shape[0]):
+            rows = torch.cat([test.positions[k], torch.zeros(test.positions.shape[1], 1, 3)], 1)
+            f[f"{k}/positions"] = rows.numpy()
+            f[f"{k}/scene_params"] = np.array([3, float(test.params[k, 0])] + [0.0] * 10)
+    own = evaluate_dynamics(config(tmp, "task=evaluate_dynamics", f"ckpt_path={result['checkpoint']}", "task.param_grid=0", "task.rigidness_grid=0"))
+    flex = evaluate_dynamics(config(tmp, "task=evaluate_dynamics", f"ckpt_path={result['checkpoint']}", "task.param_grid=0", "task.rigidness_grid=0",
+                                    f"task.flex_rollouts={tmp_path / 'flex.h5'}"))
+    assert flex["test"] == str(tmp_path / "flex.h5") and own["test"] == "test split"
+    for k in (1, 5, 10):
+        assert flex[f"future_mse_x1e4@{k}"] == pytest.approx(own[f"future_mse_x1e4@{k}"], rel=1e-6)
+        assert flex[f"no_motion_mse_x1e4@{k}"] == pytest.approx(own[f"no_motion_mse_x1e4@{k}"], rel=1e-6)
+    assert 0 < own["no_motion_mse_x1e4@1"] < own["no_motion_mse_x1e4@10"]  # falling cubes: holding still is ever further off
 
 def test_evaluate_dynamics_refuses_another_envs_prior_naming_both(trained):
     """env= is honoured: a RigidFall prior passed with env=mass_rope is refused, not evaluated on RigidFall."""

@@ -5,6 +5,7 @@ from __future__ import annotations
 import torch
 
 FUTURE = "future_mse_x1e4@{}"  # metric key: the mean squared position error x 1e4 at T+k (``future_mse``)
+NO_MOTION = "no_motion_mse_x1e4@{}"  # the same for the last observed frame held still (``future_mse(..., key=NO_MOTION)``)
 
 
 def rollout(model, positions, grouping, rigidness, params, planes, kinematic, n_steps: int, history: int | None = None) -> torch.Tensor:
@@ -61,7 +62,7 @@ def rollout_runs(model, runs: list[tuple], kinematic: torch.Tensor, history: int
     return found
 
 
-def future_mse(pred: torch.Tensor, truth: torch.Tensor, horizons=(1, 5, 10, 20)) -> dict[str, float]:
+def future_mse(pred: torch.Tensor, truth: torch.Tensor, horizons=(1, 5, 10, 20), key: str = FUTURE) -> dict[str, float]:
     """Mean squared position error x 1e4 at each horizon (mean over scenes, particles and
-    coordinates, as the paper's code: F.mse_loss). pred, truth [B, n_steps, N, 3]."""
-    return {FUTURE.format(k): float(((pred[:, k - 1] - truth[:, k - 1]) ** 2).mean() * 1e4) for k in horizons if k <= pred.shape[1]}
+    coordinates, as the paper's code: F.mse_loss), under ``key``. pred, truth [B, n_steps, N, 3]."""
+    return {key.format(k): float(((pred[:, k - 1] - truth[:, k - 1]) ** 2).mean() * 1e4) for k in horizons if k <= pred.shape[1]}

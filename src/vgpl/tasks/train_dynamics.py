@@ -12,11 +12,12 @@ import torch
 from omegaconf import DictConfig
 
 from vgpl.checkpoint import init_from_spec, load_stage, scene_of
+from vgpl.data.flex_rollouts import as_rollouts, read_flex_rollouts
 from vgpl.data.schema import DatasetError
 from vgpl.data.trajectories import Rollouts, TrajectoryDataModule, load_split, true_window
 from vgpl.eval.error_breakdown import error_breakdown
 from vgpl.eval.preview import write_gif
-from vgpl.eval.rollout import future_mse, rollout
+from vgpl.eval.rollout import NO_MOTION, future_mse, rollout
 from vgpl.eval.tensorboard_media import add_gif, rollout_video
 from vgpl.models.dynamics_prior import DynamicsPrior
 from vgpl.sim.scene import Scene
@@ -38,9 +39,10 @@ def evaluate_rollouts(
     model: DynamicsPrior, scene: Scene, test: Rollouts, observed: int, n_steps: int, max_rollouts: int | None = None, start_frame: int = 0
 ) -> tuple[dict, torch.Tensor, torch.Tensor]:
     """Future MSE x 1e4 on the test split ``test``: observe ``observed`` frames from ``start_frame``
-    on, roll ``n_steps`` forward, on its first ``max_rollouts`` rollouts. ``metrics`` also holds
-    ``breakdown@<n_steps>``: where the error at the last predicted frame comes from (per instance,
-    centroid share, by parameter; ``vgpl.eval.error_breakdown``).
+    on, roll ``n_steps`` forward, on its first ``max_rollouts`` rollouts. ``metrics`` also holds the
+    same error of the guess that nothing moves after the last observed frame (``no_motion_mse_x1e4@k``,
+    the scale the prior's is read against) and ``breakdown@<n_steps>``: where the error at the last
+    predicted frame comes from (per instance, centroid share, by parameter; ``vgpl.eval.error_breakdown``).
 
     Returns: (metrics, predictions [R, n_steps, N, 3], ground truth [R, n_steps, N, 3]).
     """
@@ -55,7 +57,8 @@ def evaluate_rollouts(
         pred = rollout(model, positions, grouping, rigidness, params, planes, kinematic, n_steps)
     truth = positions[:, h:]
     breakdown = error_breakdown(pred, truth, torch.as_tensor(scene.instance), params, n_steps, list(scene.param_names))
-    return future_mse(pred, truth) | {f"breakdown@{n_steps}": breakdown}, pred, truth
+    still = positions[:, h - 1 : h].expand_as(truth)  # the last observed frame, held
+    return future_mse(pred, truth) | future_mse(still, truth, key=NO_MOTION) | {f"breakdown@{n_steps}": breakdown}, pred, truth
 
 
 def train_dynamics(cfg: DictConfig) -> dict:
@@ -116,7 +119,8 @@ def evaluate_dynamics(cfg: DictConfig) -> dict:
     model, train_cfg = load_dynamics(cfg.ckpt_path, env=cfg.env.name)  # env= is honoured: another env's prior is refused, naming both
     scene = scene_of(train_cfg)
     root = cfg.data.root
-    test = load_split(root, scene.name, "test")
+    flex = cfg.task.get("flex_rollouts")
+    test = as_rollouts(read_flex_rollouts(flex, scene.name), scene) if flex else load_split(root, scene.name, "test")
     if test.positions.shape[2] != scene.n_particles:
         raise DatasetError(f"{root}/{scene.name}: {test.positions.shape[2]} particles, checkpoint {cfg.ckpt_path} expects {scene.n_particles}")
     starts = list(cfg.task.get("gradient_starts") or [])
@@ -130,7 +134,7 @@ def evaluate_dynamics(cfg: DictConfig) -> dict:
     metrics, pred, truth = evaluate_rollouts(model, scene, test, cfg.eval.observed, cfg.eval.n_steps, cfg.eval.get("max_rollouts"), start)
     out = Path(cfg.paths.output_dir)
     out.mkdir(parents=True, exist_ok=True)  # run.py's Hydra makes it; a direct call may not have
-    result = {"env": scene.name, "checkpoint": str(cfg.ckpt_path), "start_frame": start, **metrics}
+    result = {"env": scene.name, "checkpoint": str(cfg.ckpt_path), "test": flex or "test split", "start_frame": start, **metrics}
     # metrics.json is rewritten after each part, so a later part that fails or is stopped (no
     # proposals; the gradient agreement can take an hour) keeps the numbers of the earlier ones
     write_metrics = lambda: (out / "metrics.json").write_text(json.dumps(result, indent=1))  # noqa: E731

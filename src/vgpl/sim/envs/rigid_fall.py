@@ -1,6 +1,12 @@
 """RigidFall: three rigid 4x4x4 cubes stacked with horizontal jitter, dropped on a floor.
 
 Parameter: gravity (m/s^2, along y). 192 particles, 3 rigid instances, no action.
+
+The scene draws what the authors' generator draws: cube j's lattice corner sits at offsets
+x, z ~ U(offset) and y ~ U(levels[j], levels[j] + level_jitter), with no rotation (``yaw`` = 0), so
+the cubes start one contact distance apart and fall together. Contacts are a part of the scene
+(``contacts``): by default FleX's soft per-particle contacts calibrated to the authors' rollouts
+(vgpl.sim.particle_contacts.ParticleContacts).
 """
 
 from __future__ import annotations
@@ -8,18 +14,18 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from vgpl.sim.contacts import project_particle_contacts, project_planes, push_rigid_out_of_planes
 from vgpl.sim.neighbors import radius_pairs
+from vgpl.sim.particle_contacts import BodyContacts, ParticleContacts
 from vgpl.sim.scene import RolloutSample, Scene, lattice, rotation_y
 
 
 class RigidFall(Scene):
     name = "rigid_fall"
     param_names = ("gravity",)
-    default_camera = dict(eye=(0.2, 0.875, 2.0), target=(0.0, 0.5, 0.0), fov_y=50.0)
+    default_camera = dict(eye=(0.2, 0.875, 2.0), target=(0.1, 0.3, 0.05), fov_y=40.0)  # the authors' eye; aimed at the stack
     instance_colors = ((0.85, 0.25, 0.2), (0.25, 0.7, 0.3), (0.25, 0.4, 0.85))
     action_dim = 0
-    vertical_symmetry = True  # a floor only; jitter and yaw are symmetric about the y axis
+    vertical_symmetry = True  # the floor is the only plane: a turn about a vertical axis is a rollout of the same gravity
 
     def __init__(
         self,
@@ -30,36 +36,41 @@ class RigidFall(Scene):
         substeps: int = 2,
         iterations: int = 4,
         camera: dict | None = None,
-        n_cubes: int = 3,
         cube_size: int = 4,
         spacing: float = 0.05,
-        base_height: float = 0.4,
-        stack_gap: float = 0.1,
-        jitter: float = 0.06,
-        friction: float = 0.5,
+        levels=(0.09, 0.30, 0.51),
+        level_jitter: float = 0.01,
+        offset=(0.0, 0.1),
+        yaw: float = 0.0,
+        contacts: ParticleContacts | BodyContacts | None = None,
     ) -> None:
+        """levels: [n_cubes] lowest y of each cube's lattice corner (m); level_jitter: width of its
+        uniform draw above that (m); offset: (low, high) of the corner's x and z draws (m); yaw:
+        largest rotation about y (radians, drawn uniform in [0, yaw])."""
         super().__init__(list(param_low), list(param_high), n_steps, dt, substeps, iterations, camera)
         self.cube = lattice((cube_size,) * 3, spacing)
-        self.n_cubes, self.spacing = n_cubes, spacing
-        self.cube_extent = (cube_size - 1) * spacing + spacing  # particle centres span + one radius each side
-        self.base_height, self.stack_gap, self.jitter, self.friction = base_height, stack_gap, jitter, friction
+        self.levels, self.level_jitter, self.offset, self.yaw = [float(v) for v in levels], float(level_jitter), tuple(offset), float(yaw)
+        self.n_cubes, self.spacing = len(self.levels), spacing
+        self.half_extent = cube_size * spacing / 2  # lattice corner -> centre: half a spacing inside each face
+        self.contacts = contacts if contacts is not None else ParticleContacts()
         per = self.cube.shape[0]
-        self.instance = np.repeat(np.arange(n_cubes), per)
-        self.rigid = np.ones(n_cubes, dtype=bool)
-        self.type_names = ("cube",) * n_cubes
-        self.inv_mass = np.ones(n_cubes * per, dtype=np.float32)
-        self.radius = np.full(n_cubes * per, spacing / 2, dtype=np.float32)
-        self.rest_offsets = np.tile(self.cube, (n_cubes, 1)).astype(np.float32)
+        self.instance = np.repeat(np.arange(self.n_cubes), per)
+        self.rigid = np.ones(self.n_cubes, dtype=bool)
+        self.type_names = ("cube",) * self.n_cubes
+        self.inv_mass = np.ones(self.n_cubes * per, dtype=np.float32)
+        self.radius = np.full(self.n_cubes * per, spacing / 2, dtype=np.float32)
+        self.rest_offsets = np.tile(self.cube, (self.n_cubes, 1)).astype(np.float32)
         self.floor = np.array([0.0, 1.0, 0.0, 0.0], dtype=np.float32)
 
     def sample(self, rng: np.random.Generator, params=None) -> RolloutSample:
         params = self.sample_params(rng, params)
-        cubes, y = [], self.base_height
-        for _ in range(self.n_cubes):
-            centre = np.array([rng.uniform(-self.jitter, self.jitter), y, rng.uniform(-self.jitter, self.jitter)])
-            # cube diagonal rotated by yaw: keep the stack gap larger than the rotated extent
-            cubes.append(self.cube @ rotation_y(rng.uniform(0.0, np.pi / 2)).T + centre)
-            y += self.cube_extent + self.stack_gap * rng.uniform(0.5, 1.5)
+        cubes = []
+        for level in self.levels:  # the authors' draw order: x, y, z per cube
+            x = rng.uniform(*self.offset)
+            y = rng.uniform(level, level + self.level_jitter)
+            z = rng.uniform(*self.offset)
+            turn = rotation_y(rng.uniform(0.0, self.yaw)) if self.yaw > 0 else np.eye(3)
+            cubes.append(self.cube @ turn.T + np.array([x, y, z]) + self.half_extent)
         positions = np.concatenate(cubes).astype(np.float32)
         return RolloutSample(positions, params, np.zeros((self.n_steps, 0), dtype=np.float32))
 
@@ -79,11 +90,10 @@ class RigidFall(Scene):
         return g
 
     def neighbours(self, x: torch.Tensor, ctx: dict) -> dict:
-        return {"contact": radius_pairs(x, 1.6 * self.spacing, ctx["allowed"])}
+        return {"contact": radius_pairs(x, self.contacts.search_radius, ctx["allowed"])}
 
     def project(self, p, x, ctx, pairs, frame):
-        p = project_particle_contacts(p, x, self._bodies, *pairs["contact"], distance=self.spacing, friction=self.friction)
-        return project_planes(p, x, self._bodies, ctx["planes"], friction=self.friction)
+        return self.contacts.project(p, x, self._bodies, pairs["contact"], ctx["planes"], self.shape_match)
 
     def finalize(self, p, ctx, frame):
-        return push_rigid_out_of_planes(self.shape_match(p), self._bodies, ctx["planes"])
+        return self.contacts.finalize(p, self._bodies, ctx["planes"], self.shape_match)
