@@ -100,7 +100,8 @@ def test_parameter_sweep_from_proposals_starts_from_them_and_names_a_missing_fil
     # the cubes' start frames fitted rigidly to their last frame's shape: another start, and it says so
     rigid = evaluate_dynamics(config(tmp, "task=evaluate_dynamics", ckpt, "task.param_sweep_history=proposals_rigid"))
     assert rigid["param_sweep_history"] == "proposals_rigid"
-    assert all(abs(r - p) > 1e-5 for r, p in zip(rigid["rollout_l1_over_grid/gravity"], from_proposals["rollout_l1_over_grid/gravity"]))
+    differ = [abs(r - p) > 1e-5 for r, p in zip(rigid["rollout_l1_over_grid/gravity"], from_proposals["rollout_l1_over_grid/gravity"])]
+    assert sum(differ) >= len(differ) - 1  # another curve: it may cross the first at one grid value (the metrics are rounded to 1e-5)
     with pytest.raises(ValueError, match="task.param_sweep_history='rigid'"):
         evaluate_dynamics(config(tmp, "task=evaluate_dynamics", ckpt, "task.param_sweep_history=rigid"))
 
