@@ -36,7 +36,8 @@ class ParticleContacts:
     friction, plane_friction: Coulomb coefficients against particles and planes;
     relaxation, plane_relaxation: scale of the averaged particle and of the plane corrections.
     The defaults are FleX's RigidFall settings, with friction and the relaxations fitted to the
-    authors' rollouts (benchmarks/flex_fidelity.py).
+    authors' rollouts (benchmarks/flex_fidelity.py). Every particle has the same mass, as in
+    RigidFall: a pair's correction is split evenly between its two particles.
     """
 
     distance: float = 0.055
