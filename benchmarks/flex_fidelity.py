@@ -77,9 +77,9 @@ def main() -> None:
     rollouts = read_flex_rollouts(args.demo, "rigid_fall")
     held_out = [k for k in range(len(rollouts)) if k not in args.calibration]
     splits = {"calibration": args.calibration, "held_out": held_out}
+    scene = default_scene()  # FleX's frame step is the scene's, 1/60 s
     flex = {name: rigid_fall_outcomes(np.stack([rollouts[k].positions for k in ids]), rollouts[0].instance,
-                                      np.array([float(rollouts[k].params[0]) for k in ids]), 1 / 60) for name, ids in splits.items()}
-    scene = default_scene()
+                                      np.array([float(rollouts[k].params[0]) for k in ids]), scene.dt) for name, ids in splits.items()}
     worlds = {"default (particle contacts)": scene.contacts, "hard contacts (BodyContacts)": BodyContacts()}
     if args.fit:
         cal = [rollouts[k] for k in args.calibration]

@@ -98,6 +98,26 @@ def test_video_files_and_png_folders_are_read_as_rgb_frames(tmp_path):
     assert video[0, 60, 20, 0] > 150 and video[0, 60, 140, 0] < 50
 
 
+def test_png_frames_are_read_in_natural_order_and_must_be_rgb(tmp_path):
+    """frame_0.png ... frame_11.png, as ffmpeg's %d.png names them: 2 before 10, not after 1."""
+    frames = np.zeros((12, 8, 8, 3), np.uint8)
+    frames[:, 0, 0, 0] = np.arange(12) * 20  # each frame says which it is
+    for k, f in enumerate(frames):
+        cv2.imwrite(str(tmp_path / f"frame_{k}.png"), cv2.cvtColor(f, cv2.COLOR_RGB2BGR))
+    read, _ = read_video(tmp_path)
+    assert read[:, 0, 0, 0].tolist() == (np.arange(12) * 20).tolist()
+    gray = tmp_path / "gray"
+    gray.mkdir()
+    cv2.imwrite(str(gray / "0.png"), np.zeros((8, 8), np.uint8))
+    with pytest.raises(VideoFileError, match=r"gray/0.png: a grayscale uint8 PNG, expected RGB \(or RGBA\) with 8 bits per channel"):
+        read_video(gray)
+    deep = tmp_path / "deep"
+    deep.mkdir()
+    cv2.imwrite(str(deep / "0.png"), np.zeros((8, 8, 3), np.uint16))
+    with pytest.raises(VideoFileError, match="deep/0.png: a 3-channel uint16 PNG, expected RGB"):
+        read_video(deep)
+
+
 def test_unreadable_videos_and_actions_are_named(tmp_path):
     with pytest.raises(VideoFileError, match="nope.mp4: no such video"):
         read_video(tmp_path / "nope.mp4")

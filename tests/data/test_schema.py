@@ -1,5 +1,6 @@
 from __future__ import annotations
 
+import os
 import shutil
 
 import h5py
@@ -103,7 +104,7 @@ def test_writing_refuses_non_finite_values_and_parameters_outside_their_range(tm
     shard.velocities[0].flat[3] = float("inf")
     with pytest.raises(DatasetError, match=r"out\.h5: 'velocities' holds NaN or inf"):
         write_shard(tmp_path / "out.h5", shard)
-    assert not (tmp_path / "out.h5").exists() and not (tmp_path / "out.h5.tmp").exists()
+    assert not (tmp_path / "out.h5").exists() and not list(tmp_path.glob("out.h5*.tmp"))
     shard = read_shard(good, images=False)
     shard.params[0, 0] = 3.0  # gravity is in [-15, -5]
     with pytest.raises(DatasetError, match=r"'params' of rollout\(s\) .* lie outside the range"):
@@ -116,3 +117,43 @@ def test_a_stray_copy_of_a_shard_is_refused_naming_both_files(tmp_path):
     shutil.copy(first, first.with_name("shard_00007.h5"))
     with pytest.raises(DatasetError, match=r"shard_00007\.h5: rollout \d+ is also in .*shard_00000\.h5"):
         load_split(tmp_path, "rigid_fall", "train")
+
+
+def test_a_failed_write_leaves_no_temporary_file_and_writers_never_share_one(tmp_path):
+    """Each write goes through a temporary file of its own (pid and a random part), removed when
+    the write fails after it was made: a full disk at the rename leaves nothing behind."""
+    from vgpl.data.shard import temporary_path
+
+    scene = make_scene("mass_rope", n_steps=4)
+    plan = plan_shards(2, 1.0, 2)[0]
+    shard = simulate_shard(scene, plan, seed=0, batch_size=2, render=False, device="cpu")
+    shard.attrs = {**scene_attrs(scene, 0), "split": "train", "shard": 0, "config_hash": "abc"}
+
+    def full_disk(tmp, path):
+        assert tmp.exists() and tmp.name.startswith("out.h5.") and tmp.suffix == ".tmp"
+        raise OSError(28, "No space left on device")
+
+    with pytest.raises(OSError, match="No space left on device"):
+        write_shard(tmp_path / "out.h5", shard, place=full_disk)
+    assert list(tmp_path.iterdir()) == []
+    names = {temporary_path(tmp_path / "out.h5").name for _ in range(20)}
+    assert len(names) == 20 and all(n.startswith(f"out.h5.{os.getpid()}-") for n in names)
+
+
+def test_a_second_writer_of_the_same_shard_between_anothers_write_and_rename_leaves_it_whole(tmp_path):
+    """Writer A has written its temporary file; before A renames it, writer B writes and places the
+    same shard. With one shared temporary name B would truncate A's file (or A would find none);
+    with their own names both place a whole shard."""
+    scene = make_scene("mass_rope", n_steps=4)
+    shard = simulate_shard(scene, plan_shards(2, 1.0, 2)[0], seed=0, batch_size=2, render=False, device="cpu")
+    shard.attrs = {**scene_attrs(scene, 0), "split": "train", "shard": 0, "config_hash": "abc"}
+    target = tmp_path / "shard_00000.h5"
+
+    def place_after_another_writer(tmp, path):
+        write_shard(path, shard)  # writer B, start to finish
+        os.replace(tmp, path)  # then writer A's rename
+
+    write_shard(target, shard, place=place_after_another_writer)
+    alone = write_shard(tmp_path / "alone.h5", shard)
+    assert target.read_bytes() == alone.read_bytes() and read_shard(target, images=False).positions.shape == (2, 4, 95, 3)
+    assert not list(tmp_path.glob("*.tmp"))

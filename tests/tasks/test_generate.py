@@ -170,6 +170,26 @@ def test_two_runs_of_other_seeds_started_together_never_mix(tmp_path):
     assert not list((tmp_path / "data/rigid_fall").rglob("*.tmp"))
 
 
+@pytest.mark.slow  # starts several processes
+def test_two_identical_runs_started_together_leave_whole_shards(tmp_path):
+    """Two generate processes of one configuration into one folder at the same time (a resume
+    started twice): both end with rc 0, each writes its own temporary files, and the shards are
+    the bytes of a single run's."""
+    args = ["task=generate", "env=rigid_fall", "env.scene.n_steps=8", "data.n_rollouts=10", "data.shard_size=2", "data.batch_size=2",
+            "data.progress=false", "seed=0"]
+    procs = [subprocess.Popen([sys.executable, str(REPO / "run.py"), *args, f"data.root={tmp_path}/data", f"hydra.run.dir={tmp_path}/h{k}"],
+                              cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True) for k in (1, 2)]
+    outcomes = [(p.wait(timeout=300), p.stderr.read()) for p in procs]
+    assert [rc for rc, _ in outcomes] == [0, 0], outcomes
+    single = run_py(*args, f"data.root={tmp_path}/single", f"hydra.run.dir={tmp_path}/single_run", cwd=tmp_path)
+    assert single.returncode == 0, single.stderr[-2000:]
+    both = sorted((tmp_path / "data/rigid_fall").rglob("shard_*.h5"))
+    alone = sorted((tmp_path / "single/rigid_fall").rglob("shard_*.h5"))
+    assert [p.relative_to(tmp_path / "data") for p in both] == [p.relative_to(tmp_path / "single") for p in alone] and len(both) == 6
+    for a, b in zip(both, alone):
+        assert a.read_bytes() == b.read_bytes(), a
+    assert not list((tmp_path / "data/rigid_fall").rglob("*.tmp"))
+
 def test_the_learned_stages_env_keys_leave_the_data_as_it_is(tmp_path):
     """Only the env's scene (and name) makes the data: a dataset stays valid when the env config's
     keys for the models change (otherwise each such change would refuse the data as "another

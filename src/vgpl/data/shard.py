@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import uuid
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -38,24 +39,34 @@ def write_shard(path: str | Path, shard: Shard, compression_level: int = 4, plac
     path = Path(path)
     check_values(path, {key: getattr(shard, key) for key in DATASETS}, shard.attrs["param_low"], shard.attrs["param_high"])
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(path.name + ".tmp")
+    tmp = temporary_path(path)
     attrs = {
         **shard.attrs,
         "format_version": FORMAT_VERSION,
         "generator_version": __version__,
     }
-    with h5py.File(tmp, "w") as f:
-        for key in DATASETS:
-            data = getattr(shard, key)
-            chunks = (1, *data.shape[1:]) if data.ndim >= 3 and data.shape[-1] > 0 else None
-            f.create_dataset(key, data=data, chunks=chunks)
-        if shard.images is not None:
-            r, t, h, w, c = shard.images.shape
-            f.create_dataset("images", data=shard.images, chunks=(1, 1, h, w, c), compression="gzip", compression_opts=compression_level)
-        for k, v in attrs.items():
-            f.attrs[k] = v
-    place(tmp, path)
+    try:
+        with h5py.File(tmp, "w") as f:
+            for key in DATASETS:
+                data = getattr(shard, key)
+                chunks = (1, *data.shape[1:]) if data.ndim >= 3 and data.shape[-1] > 0 else None
+                f.create_dataset(key, data=data, chunks=chunks)
+            if shard.images is not None:
+                r, t, h, w, c = shard.images.shape
+                f.create_dataset("images", data=shard.images, chunks=(1, 1, h, w, c), compression="gzip", compression_opts=compression_level)
+            for k, v in attrs.items():
+                f.attrs[k] = v
+        place(tmp, path)
+    finally:
+        tmp.unlink(missing_ok=True)  # placed: gone already; failed (a full disk, an interrupt): not left behind
     return path
+
+
+def temporary_path(path: Path) -> Path:
+    """A file name beside ``path`` that no other writer uses: ``<name>.<pid>-<random>.tmp``. Two
+    processes writing the same shard at once each write their own file, so neither truncates the
+    other's, and either one's rename puts a whole shard in place."""
+    return path.with_name(f"{path.name}.{os.getpid()}-{uuid.uuid4().hex[:8]}.tmp")
 
 
 def read_shard(path: str | Path, images: bool = True, rollouts: int | None = None, frames: int | None = None) -> Shard:

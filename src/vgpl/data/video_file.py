@@ -1,9 +1,10 @@
 """Reading one video for task=ground: a video file (MP4, AVI, ... through OpenCV), a folder of
-PNG frames (in file-name order), or one rollout of a dataset shard (``.h5``, its frames and
-actions). Frames come back RGB uint8 [T, H, W, 3]; actions [T, A] or None."""
+PNG frames (in natural file-name order: frame_2 before frame_10), or one rollout of a dataset shard
+(``.h5``, its frames and actions). Frames come back RGB uint8 [T, H, W, 3]; actions [T, A] or None."""
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 import cv2
@@ -45,14 +46,24 @@ def read_actions(path: str | Path) -> np.ndarray:
     return actions.astype(np.float32)
 
 
+def natural_key(path: Path) -> list:
+    """Sort key of a file name with its numbers read as numbers: frame_2.png before frame_10.png."""
+    return [int(part) if part.isdigit() else part for part in re.split(r"(\d+)", path.name)]
+
+
 def _png_folder(folder: Path) -> np.ndarray:
-    files = sorted(folder.glob("*.png"))
+    files = sorted(folder.glob("*.png"), key=natural_key)
     if not files:
         raise VideoFileError(f"{folder}: no *.png frames in the folder")
-    frames = [cv2.imread(str(f), cv2.IMREAD_COLOR) for f in files]
+    frames = [cv2.imread(str(f), cv2.IMREAD_UNCHANGED) for f in files]
     bad = next((f for f, im in zip(files, frames) if im is None), None)
     if bad is not None:
         raise VideoFileError(f"{bad}: not a readable PNG")
+    for f, im in zip(files, frames):
+        if im.dtype != np.uint8 or im.ndim != 3 or im.shape[2] not in (3, 4):
+            kind = "grayscale" if im.ndim == 2 else f"{im.shape[2] if im.ndim == 3 else '?'}-channel"
+            raise VideoFileError(f"{f}: a {kind} {im.dtype} PNG, expected RGB (or RGBA) with 8 bits per channel, as the renderer's frames")
+    frames = [im[..., :3] for im in frames]  # alpha dropped
     shapes = {im.shape for im in frames}
     if len(shapes) > 1:
         raise VideoFileError(f"{folder}: frames of different sizes {sorted(shapes)}")
