@@ -618,6 +618,19 @@ def test_the_authors_flex_rollouts_can_stand_in_for_the_test_split(trained, tmp_
         assert flex[f"no_motion_mse_x1e4@{k}"] == pytest.approx(own[f"no_motion_mse_x1e4@{k}"], rel=1e-6)
     assert 0 < own["no_motion_mse_x1e4@1"] < own["no_motion_mse_x1e4@10"]  # falling cubes: holding still is ever further off
 
+def test_a_failed_training_leaves_the_config_of_the_checkpoint_beside_it(trained):
+    """config.yaml is written with the run's first checkpoint: a run that fails before one (here a
+    bad precision, with another start_frame) leaves the trained checkpoint's config, and evaluation
+    from that checkpoint still reads its own start_frame."""
+    tmp, result = trained
+    config_file = Path(result["checkpoint"]).parent / "config.yaml"
+    before = config_file.read_bytes()
+    with pytest.raises(Exception, match="bogus"):
+        train_dynamics(config(tmp, "task=train_dynamics", "trainer.precision=bogus", "env.start_frame=40", "ckpt_path=last"))
+    assert config_file.read_bytes() == before
+    again = evaluate_dynamics(config(tmp, "task=evaluate_dynamics", f"ckpt_path={result['checkpoint']}", "task.param_grid=0", "task.rigidness_grid=0"))
+    assert again["start_frame"] == 0
+
 def test_evaluate_dynamics_refuses_another_envs_prior_naming_both(trained):
     """env= is honoured: a RigidFall prior passed with env=mass_rope is refused, not evaluated on RigidFall."""
     tmp, result = trained

@@ -80,9 +80,9 @@ def fit(cfg: DictConfig, stage: str, stage_cfg: DictConfig, model: L.LightningMo
     saved = OmegaConf.to_container(cfg, resolve=True)
     saved["stage"] = stage
     saved["stage_class"] = f"{type(model).__module__}.{type(model).__name__}"
-    OmegaConf.save(OmegaConf.create(saved), folder / "config.yaml")
     kwargs = trainer_kwargs(cfg, stage_cfg)
-    callbacks = [*checkpointing(folder, monitor), LastValidation(), SpentTimeWarning(max_time_key(cfg, stage_cfg)), FiniteLoss(stage)]
+    callbacks = [SaveConfig(folder / "config.yaml", OmegaConf.create(saved)), *checkpointing(folder, monitor), LastValidation(),
+                 SpentTimeWarning(max_time_key(cfg, stage_cfg)), FiniteLoss(stage)]
     if stage_cfg.get("snapshot_every_n_steps") is not None:
         callbacks.append(snapshots(folder, int(stage_cfg.snapshot_every_n_steps)))
     ema = stage_cfg.get("ema") or {}
@@ -104,6 +104,22 @@ def fit(cfg: DictConfig, stage: str, stage_cfg: DictConfig, model: L.LightningMo
         log.warning("%s: trainer.max_time=%s stopped training after %d of %d steps; its results depend on this machine's speed",
                     stage, kwargs.get("max_time"), ended["steps"], ended["max_steps"])
     return trainer, folder / "last.ckpt"
+
+
+class SaveConfig(Callback):
+    """Writes the run's config to ``path`` when the run saves its first checkpoint, not before: a
+    run that fails first (a bad trainer option, a crash in the first steps) leaves the config.yaml
+    of the checkpoint already there, which later stages rebuild the env and model from."""
+
+    def __init__(self, path: Path, config: DictConfig) -> None:
+        self.path, self.config, self.written = path, config, False
+
+    def on_save_checkpoint(self, trainer: L.Trainer, pl_module: L.LightningModule, checkpoint: dict) -> None:
+        if not self.written and trainer.is_global_zero:
+            tmp = self.path.with_name(self.path.name + ".tmp")
+            OmegaConf.save(self.config, tmp)
+            tmp.replace(self.path)
+            self.written = True
 
 
 class SpentTimeWarning(Callback):
