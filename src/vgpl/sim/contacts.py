@@ -121,10 +121,8 @@ class _Frame:
         return flat.reshape(b, n, 3)
 
 
-def friction_impulse(rel_move: torch.Tensor, normal: torch.Tensor, w: torch.Tensor, normal_lambda: torch.Tensor, friction: float) -> torch.Tensor:
-    """Coulomb friction impulse [E, 3] opposing the tangential part of the relative displacement
-    ``rel_move`` [E, 3] along unit ``normal`` [E, 3]: it cancels that part (generalised inverse mass
-    ``w`` [E]) up to |J_t| <= ``friction`` x ``normal_lambda`` [E]."""
+def _friction_impulse(rel_move: torch.Tensor, normal: torch.Tensor, w: torch.Tensor, normal_lambda: torch.Tensor, friction: float) -> torch.Tensor:
+    """Coulomb friction impulse [E, 3] opposing the tangential relative displacement, |J_t| <= mu J_n."""
     tangential = rel_move - (rel_move * normal).sum(-1, keepdim=True) * normal
     t_len = tangential.norm(dim=-1)
     lam_t = torch.minimum(t_len / w, friction * normal_lambda)
@@ -151,7 +149,7 @@ def project_particle_contacts(
     impulse = lam[:, None] * normal
     if friction > 0.0:
         rel = (flat[i] - flat_prev[i]) - (flat[j] - flat_prev[j])
-        impulse = impulse + friction_impulse(rel, normal, w, lam, friction) * (penetration > 0)[:, None]
+        impulse = impulse + _friction_impulse(rel, normal, w, lam, friction) * (penetration > 0)[:, None]
     return frame.apply(i, impulse)
 
 
@@ -181,7 +179,7 @@ def project_planes(
         rel = p.reshape(-1, 3)[idx] - x_prev.reshape(-1, 3)[idx]
         if plane_velocity is not None:
             rel = rel - plane_velocity[scene, k]
-        impulse = impulse + friction_impulse(rel, normal, w, lam, friction)
+        impulse = impulse + _friction_impulse(rel, normal, w, lam, friction)
     return frame.apply(idx, impulse, average_free=False)
 
 

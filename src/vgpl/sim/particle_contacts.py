@@ -21,10 +21,20 @@ from dataclasses import dataclass
 
 import torch
 
-from vgpl.sim.contacts import Bodies, friction_impulse, project_particle_contacts, project_planes, push_rigid_out_of_planes
+from vgpl.sim.contacts import Bodies, project_particle_contacts, project_planes, push_rigid_out_of_planes
 from vgpl.sim.vector import squared_norm
 
 ShapeMatch = Callable[[torch.Tensor], torch.Tensor]
+
+
+def tangential_stop(move: torch.Tensor, normal: torch.Tensor, limit: torch.Tensor) -> torch.Tensor:
+    """[E, 3] Coulomb friction correction: cancels the tangential part of ``move`` [E, 3] along unit
+    ``normal`` [E, 3], at most ``limit`` [E] long. Lengths are roots of ``squared_norm``'s
+    matrix-vector product, whose value for a row does not depend on how many rows there are
+    (``torch.linalg.norm``'s vectorised reduction does: a rollout would depend on its batch)."""
+    tangential = move - (move * normal).sum(-1, keepdim=True) * normal
+    length = squared_norm(tangential).sqrt()
+    return -(torch.minimum(length, limit) / length.clamp_min(1e-12))[:, None] * tangential
 
 
 @dataclass
@@ -64,8 +74,7 @@ class ParticleContacts:
             normal = d / length.clamp_min(1e-9)[:, None]
             depth = (self.distance - length).clamp_min(0.0)  # each directed pair moves its i by half
             rel = move.index_select(0, i) - move.index_select(0, j)
-            one = torch.ones_like(depth)  # a particle's own correction: unit inverse mass
-            corr = 0.5 * depth[:, None] * normal + 0.5 * friction_impulse(rel, normal, one, depth, self.friction) * (depth > 0)[:, None]
+            corr = 0.5 * depth[:, None] * normal + 0.5 * tangential_stop(rel, normal, self.friction * depth) * (depth > 0)[:, None]
             count = torch.zeros(b * n, dtype=p.dtype, device=p.device).index_add_(0, i, (depth > 0).to(p.dtype))
             delta = delta.index_add_(0, i, corr) * (self.relaxation / count.clamp_min(1.0))[:, None]
         normals, offsets = planes[..., :3], planes[..., 3]
@@ -75,7 +84,7 @@ class ParticleContacts:
             idx = scene * n + particle
             normal = normals[scene, k]
             depth = -signed[scene, particle, k]
-            corr = depth[:, None] * normal + friction_impulse(move.index_select(0, idx), normal, torch.ones_like(depth), depth, self.plane_friction)
+            corr = depth[:, None] * normal + tangential_stop(move.index_select(0, idx), normal, self.plane_friction * depth)
             delta = delta.index_add(0, idx, self.plane_relaxation * corr)
         return shape_match((flat + delta).reshape(b, n, 3))
 
