@@ -19,6 +19,7 @@ import shlex
 from pathlib import Path
 
 import pytest
+import yaml
 from hydra import compose, initialize_config_dir
 from hydra.core.hydra_config import HydraConfig
 from hydra.core.override_parser.overrides_parser import OverridesParser
@@ -141,6 +142,12 @@ def task_defining(key: str) -> str | None:
     return None
 
 
+def mass_rope_scene_keys() -> set[str]:
+    """The keys of MassRope's scene that the default env's scene lacks."""
+    scene = lambda env: set(yaml.safe_load((REPO / "conf" / "env" / f"{env}.yaml").read_text())["scene"])  # noqa: E731
+    return scene("mass_rope") - scene("rigid_fall")
+
+
 def context_for(key: str) -> list[str]:
     """The overrides a prose key is meant with: the standard preset, and the task or launcher it belongs to."""
     context = ["experiment=standard"]
@@ -148,7 +155,7 @@ def context_for(key: str) -> list[str]:
         context.append(f"task={task}")
     if key.startswith("hydra.launcher."):
         context.append("hydra/launcher=slurm")
-    if key.startswith("env.scene.start_stretch"):  # MassRope's scene alone has it
+    if key.startswith("env.scene.") and key.split(".")[2] in mass_rope_scene_keys():  # MassRope's scene alone has them
         context.append("env=mass_rope")
     return context
 

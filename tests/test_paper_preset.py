@@ -66,7 +66,7 @@ def test_every_departure_is_off_in_the_paper_preset(paper_configs, env):
         for key in re.findall(CONFIG_KEY, row["key"]):
             try:
                 got = value(cfg, key)
-            except KeyError:  # a key of another env's scene (start_stretch: MassRope's)
+            except KeyError:  # a key of another env's scene
                 assert key.startswith("env.scene."), f"{key} ({row['departure']}) is in no config"
                 continue
             assert got == yaml.safe_load(row["paper value"]), f"experiment=paper env={env}: {key} = {got!r} keeps '{row['departure']}' on"

@@ -62,9 +62,12 @@ def test_mass_ropes_pin_row_is_shifted_to_the_frame_it_belongs_to(tmp_path):
     [read] = read_flex_rollouts(tmp_path, "mass_rope")
     stored = r["positions"][:, 95]  # row 95 of frame t: the pin at frame t + 1
     np.testing.assert_array_equal(read.pin[1:], stored[:-1])
-    np.testing.assert_array_equal(read.pin[0], stored[0])
-    assert read.positions.shape == (5, 95, 3) and read.params.tolist() == [np.float32(0.8)] and read.velocities is None
-    assert np.bincount(read.instance).tolist() == [81, 14] and read.rigid.tolist() == [True, False]
+    np.testing.assert_array_equal(read.positions[1:, 95], stored[:-1])
+    # frame 0's pin: where FleX creates it, above the rope's last particle at the pin's height
+    np.testing.assert_array_equal(read.pin[0], [r["positions"][0, 94, 0], stored[0, 1], r["positions"][0, 94, 2]])
+    np.testing.assert_array_equal(read.positions[:, :95], r["positions"][:, :95])
+    assert read.positions.shape == (5, 96, 3) and read.params.tolist() == [np.float32(0.8)] and read.velocities is None
+    assert np.bincount(read.instance).tolist() == [81, 15] and read.rigid.tolist() == [True, False]
 
 
 def test_files_of_another_layout_are_refused_naming_the_file(tmp_path):
@@ -89,7 +92,7 @@ def test_files_of_another_layout_are_refused_naming_the_file(tmp_path):
         read_flex_rollouts(tmp_path / "nowhere", "rigid_fall")
 
 
-def test_rigid_fall_rollouts_become_a_test_split_and_mass_rope_ones_are_refused(tmp_path):
+def test_flex_rollouts_become_a_test_split_with_the_pins_path_as_actions(tmp_path):
     rng = np.random.default_rng(3)
     _write_frames(tmp_path / "fall", "0", _rollout(rng, 4, 193, _rigid_fall_params(-9.0)))
     _write_frames(tmp_path / "fall", "1", _rollout(rng, 4, 193, _rigid_fall_params(-6.0)))
@@ -98,6 +101,12 @@ def test_rigid_fall_rollouts_become_a_test_split_and_mass_rope_ones_are_refused(
     assert split.positions.shape == (2, 4, 192, 3) and split.params[:, 0].tolist() == [-9.0, -6.0]
     assert split.actions.shape == (2, 4, 0) and split.param_low.tolist() == [-15.0] and split.env == "rigid_fall"
     np.testing.assert_array_equal(split.positions[1].numpy(), read[1].positions)
-    _write_frames(tmp_path / "rope", "0", _rollout(rng, 4, 96, np.zeros(6)))
-    with pytest.raises(ValueError, match="test split of RigidFall only"):
-        as_rollouts(read_flex_rollouts(tmp_path / "rope", "mass_rope"), make_scene("mass_rope"))
+    _write_frames(tmp_path / "rope", "0", _rollout(rng, 4, 96, np.array([0.0, 1.0, 0.0, 0.7, 0.5, 1.0])))
+    rope = read_flex_rollouts(tmp_path / "rope", "mass_rope")
+    split = as_rollouts(rope, make_scene("mass_rope"))
+    assert split.positions.shape == (1, 4, 96, 3) and split.actions.shape == (1, 4, 6) and split.params.tolist() == [[0.5]]
+    np.testing.assert_allclose(split.actions[0, :, :3].numpy(), rope[0].pin)
+    np.testing.assert_allclose(split.actions[0, 1:, 3:].numpy(), np.diff(rope[0].pin, axis=0) * 60, rtol=1e-4)  # m/s at 60 frames/s
+    assert not split.actions[0, 0, 3:].any()
+    with pytest.raises(ValueError, match=r"FleX rollouts of \['mass_rope'\] given as the test split of env 'rigid_fall'"):
+        as_rollouts(rope, make_scene("rigid_fall"))

@@ -26,11 +26,11 @@ def shard_file(tmp_path_factory):
 
 def test_round_trip(shard_file):
     s = read_shard(shard_file)
-    assert s.positions.shape == (3, 6, 95, 3) and s.positions.dtype == np.float32
+    assert s.positions.shape == (3, 6, 96, 3) and s.positions.dtype == np.float32
     assert s.images.shape == (3, 6, 120, 160, 3) and s.images.dtype == np.uint8
     assert s.actions.shape == (3, 6, 6)
     assert list(s.attrs["param_names"]) == ["stiffness"]
-    assert s.instance.shape == (95,) and s.rigid.tolist() == [True, False]
+    assert s.instance.shape == (96,) and s.rigid.tolist() == [True, False]
     with h5py.File(shard_file) as f:
         assert f["images"].compression == "gzip" and f["images"].chunks == (1, 1, 120, 160, 3)
     assert not shard_file.with_name(shard_file.name + ".tmp").exists()
@@ -66,7 +66,7 @@ def test_inconsistent_shape_is_named(shard_file, tmp_path):
     with h5py.File(broken, "a") as f:
         del f["velocities"]
         f["velocities"] = np.zeros((3, 6, 94, 3), np.float32)
-    with pytest.raises(DatasetError, match="shape.h5.*'velocities'.*N=95"):
+    with pytest.raises(DatasetError, match="shape.h5.*'velocities'.*N=96"):
         validate(broken)
 
 
@@ -155,5 +155,5 @@ def test_a_second_writer_of_the_same_shard_between_anothers_write_and_rename_lea
 
     write_shard(target, shard, place=place_after_another_writer)
     alone = write_shard(tmp_path / "alone.h5", shard)
-    assert target.read_bytes() == alone.read_bytes() and read_shard(target, images=False).positions.shape == (2, 4, 95, 3)
+    assert target.read_bytes() == alone.read_bytes() and read_shard(target, images=False).positions.shape == (2, 4, 96, 3)
     assert not list(tmp_path.glob("*.tmp"))

@@ -26,11 +26,11 @@ def dataset(tmp_path_factory):
 def test_windows_cover_every_valid_frame(dataset):
     root, scene = dataset
     train = load_split(root, "mass_rope", "train")
-    assert train.positions.shape == (4, 12, 95, 3)
+    assert train.positions.shape == (4, 12, 96, 3)
     ds = TrajectoryWindows(train, scene, history=4, horizon=2)
     assert len(ds) == 4 * (12 - 4 - 2 + 1)
     item = ds[0]
-    assert item["positions"].shape == (6, 95, 3) and torch.equal(item["positions"], train.positions[0, :6])
+    assert item["positions"].shape == (6, 96, 3) and torch.equal(item["positions"], train.positions[0, :6])
     assert item["grouping"].sum(-1).eq(1).all() and item["kinematic"].sum() == 1  # the pin
     late = TrajectoryWindows(train, scene, history=4, horizon=1, start_frame=5)
     assert torch.equal(late[0]["positions"][0], train.positions[0, 5])

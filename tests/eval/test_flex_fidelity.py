@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from vgpl.data.flex_rollouts import FlexRollout
-from vgpl.eval.flex_fidelity import position_mse_x1e4, replay, rigid_fall_outcomes
+from vgpl.eval.flex_fidelity import mass_rope_outcomes, position_mse_x1e4, replay, rigid_fall_outcomes
 from vgpl.sim.envs import make_scene
 
 
@@ -61,3 +61,35 @@ def test_outcomes_of_a_fall_a_landing_and_a_slide():
     assert out["lowest"] == pytest.approx(0.01)
     assert out["bottom_slide"] == pytest.approx([0.03, 0.03])
     assert out["first_contact"] == [5, 5]  # frame 5's acceleration (frames 4, 5, 6) is no longer g
+
+
+def test_mass_rope_replay_drives_the_recorded_pin_and_starts_with_the_kick():
+    """MassRope's own rollouts, read back as FleX rollouts (no velocities recorded, as the authors'
+    MassRope files): the replay drives the pin along the recorded path and starts the mass at the
+    scene's kick, so it gives the rollouts back exactly."""
+    scene = make_scene("mass_rope", n_steps=25)
+    samples = [scene.sample(np.random.default_rng(s)) for s in (0, 1)]
+    own = scene.simulate(samples).positions.numpy()
+    rollouts = [FlexRollout("mass_rope", str(k), own[k], None, samples[k].params, scene.instance, scene.rigid, np.zeros(6), pin=own[k, :, -1])
+                for k in range(2)]
+    np.testing.assert_allclose(replay(scene, rollouts), own, atol=1e-5)
+
+
+def test_mass_rope_outcomes_of_a_stretched_rope_and_a_turned_mass():
+    """A mass of 4 particles and a rope of 2 segments from its last particle to the pin (rest 0.2 m):
+    from frame 1 on the rope is stretched by 50%, the mass is turned 90 degrees about y and the whole
+    scene is moved 0.3 m along x."""
+    mass = np.array([[0.1, 0.0, 0.0], [-0.1, 0.0, 0.0], [0.0, 0.0, 0.1], [0.0, 0.05, 0.0]])
+    turned = mass @ np.array([[0.0, 0.0, -1.0], [0.0, 1.0, 0.0], [1.0, 0.0, 0.0]]).T  # 90 degrees about y
+    positions = np.zeros((1, 3, 6, 3))
+    for t in range(3):
+        body, segment, shift = (mass, 0.1, 0.0) if t == 0 else (turned, 0.15, 0.3)
+        positions[0, t, :4] = body
+        positions[0, t, 4] = body[-1] + [0.0, segment, 0.0]
+        positions[0, t, 5] = body[-1] + [0.0, 2 * segment, 0.0]
+        positions[0, t, :, 0] += shift
+    out = mass_rope_outcomes(positions, n_mass=4, rest_length=0.2)
+    assert out["mass_turn"] == pytest.approx([90.0, 90.0], abs=1e-3)
+    assert out["mass_drop"] == pytest.approx([0.0, 0.0], abs=1e-9)
+    assert out["rope_stretch"] == pytest.approx([1 / 3, 1 / 3], abs=1e-4) and out["rope_stretch_peak"] == pytest.approx(0.5, abs=1e-4)
+    assert out["pin_travel"] == pytest.approx([np.sqrt(0.06)] * 2, abs=1e-4)  # RMS of 0, 0.3, 0.3

@@ -18,7 +18,7 @@ from vgpl.sim.envs import make_scene
     [
         ("rigid_fall", 192, [True, True, True], -15.0, -5.0, 120, 0),
         ("fluid_cube", 348, [True, False], 1.0, 100.0, 300, 6),
-        ("mass_rope", 95, [True, False], 0.25, 1.2, 200, 6),
+        ("mass_rope", 96, [True, False], 0.25, 1.2, 201, 6),
     ],
 )
 def test_hydra_env_configs_build_the_papers_scenes(env, n, rigid, low, high, steps, action_dim):
@@ -36,7 +36,7 @@ def test_hydra_env_configs_build_the_papers_scenes(env, n, rigid, low, high, ste
 def test_particle_counts_per_object():
     assert np.bincount(make_scene("rigid_fall").instance).tolist() == [64, 64, 64]
     assert np.bincount(make_scene("fluid_cube").instance).tolist() == [48, 300]
-    assert np.bincount(make_scene("mass_rope").instance).tolist() == [81, 14]
+    assert np.bincount(make_scene("mass_rope").instance).tolist() == [81, 15]  # the rope and its pin
 
 
 def test_unknown_env_is_named():

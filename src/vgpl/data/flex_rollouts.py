@@ -12,6 +12,9 @@ Rows, as the authors' generator writes them:
   ``scene_params`` = [n_instance, gravity, x0, y0, z0, x1, y1, z1, x2, y2, z2, draw_mesh].
 - MassRope: 81 mass particles, 14 rope particles, then the pin, whose row at frame t holds the pin's
   position at frame t + 1 (the action). ``scene_params`` = [x, y, z, length, stiffness, draw_mesh].
+  vgpl's MassRope has the same 96 particles in the same order; the reader puts the pin row back at
+  the frame it belongs to, and frame 0's pin where FleX creates it, straight above the rope's last
+  particle at the pin's height.
 """
 
 from __future__ import annotations
@@ -38,7 +41,7 @@ class FlexLayout:
 
 LAYOUTS = {
     "rigid_fall": FlexLayout(192, 193, tuple(np.repeat(np.arange(3), 64).tolist()), (True, True, True), param_index=1),
-    "mass_rope": FlexLayout(95, 96, (0,) * 81 + (1,) * 14, (True, False), param_index=4, pin_row=95),
+    "mass_rope": FlexLayout(96, 96, (0,) * 81 + (1,) * 15, (True, False), param_index=4, pin_row=95),
 }
 
 
@@ -53,8 +56,8 @@ class FlexRollout:
     positions: [T, N, 3] particles (shape rows dropped), metres; velocities: [T, N, 3] or None;
     params: [1] the physical parameter (RigidFall gravity in m/s², MassRope stiffness);
     instance: [N] instance ids; rigid: [M] rigidness; scene_params: the authors' raw vector;
-    pin: [T, 3] the pin's position at each frame (MassRope; frame t's is the row the authors stored
-    at t - 1, so frame 0 has none and repeats frame 1's), else None.
+    pin: [T, 3] the pin's position at each frame (MassRope: the last particle's row, frame t's being
+    the row the authors stored at t - 1), else None.
     """
 
     env: str
@@ -139,15 +142,18 @@ def _rollout(where: str, name: str, arrays: dict[str, np.ndarray], env: str) -> 
     if scene_params.shape[0] <= layout.param_index:
         raise FlexFormatError(f"{where}: 'scene_params' holds {scene_params.shape[0]} values, expected more than {layout.param_index} for {env}")
     velocities = arrays.get("velocities")
+    n = layout.n_particles
+    positions = positions[:, :n].astype(np.float32)
     pin = None
     if layout.pin_row is not None:
-        stored = positions[:, layout.pin_row].astype(np.float32)  # frame t's row: the pin at t + 1
-        pin = np.concatenate([stored[:1], stored[:-1]])
-    n = layout.n_particles
+        stored = positions[:, layout.pin_row].copy()  # frame t's row: the pin at t + 1
+        first = np.array([positions[0, layout.pin_row - 1, 0], stored[0, 1], positions[0, layout.pin_row - 1, 2]], np.float32)
+        pin = np.concatenate([first[None], stored[:-1]])
+        positions[:, layout.pin_row] = pin
     return FlexRollout(
         env=env,
         name=name,
-        positions=positions[:, :n].astype(np.float32),
+        positions=positions,
         velocities=None if velocities is None else velocities[:, :n].astype(np.float32),
         params=np.array([scene_params[layout.param_index]], dtype=np.float32),
         instance=np.asarray(layout.instance, dtype=np.int64),
@@ -157,26 +163,42 @@ def _rollout(where: str, name: str, arrays: dict[str, np.ndarray], env: str) -> 
     )
 
 
+def same_length(rollouts: list[FlexRollout]) -> int:
+    """The one length T the rollouts share; a clear error where they differ."""
+    lengths = {r.positions.shape[0] for r in rollouts}
+    if len(lengths) != 1:
+        raise ValueError(f"FleX rollouts of different lengths {sorted(lengths)}: use them in groups of one length")
+    return lengths.pop()
+
+
+def pin_actions(pin: np.ndarray, dt: float) -> np.ndarray:
+    """[T, 6] vgpl's MassRope actions from a pin path [T, 3]: position, and the velocity that moved
+    it there from the previous frame (m/s; 0 at frame 0)."""
+    velocity = np.concatenate([np.zeros((1, 3), np.float32), np.diff(pin, axis=0) / dt])
+    return np.concatenate([pin, velocity], 1).astype(np.float32)
+
+
 def as_rollouts(rollouts: list[FlexRollout], scene):
     """The FleX rollouts as a test split of ``scene``'s env (vgpl.data.trajectories.Rollouts): the
-    learned models read them as they read the env's own shards. RigidFall only: FleX's MassRope rope
-    runs from the mass to the pin, vgpl's from the pin (a kinematic particle) to the sphere."""
+    learned models read them as they read the env's own shards (MassRope's actions: the pin's path)."""
     from vgpl.data.trajectories import Rollouts
 
-    if scene.action_dim:
-        raise ValueError(f"env '{scene.name}': FleX rollouts can stand in for the test split of RigidFall only "
-                         "(vgpl's MassRope orders its rope from the pin, FleX's from the mass)")
     env = {r.env for r in rollouts}
     if env != {scene.name}:
         raise ValueError(f"FleX rollouts of {sorted(env)} given as the test split of env '{scene.name}'")
-    lengths = {r.positions.shape[0] for r in rollouts}
-    if len(lengths) != 1:
-        raise ValueError(f"FleX rollouts of different lengths {sorted(lengths)}: a test split holds one length")
+    same_length(rollouts)
+    if rollouts[0].positions.shape[1] != scene.n_particles:
+        raise ValueError(f"FleX rollouts of {rollouts[0].positions.shape[1]} particles given as the test split of env '{scene.name}' "
+                         f"({scene.n_particles} particles)")
     positions = torch.as_tensor(np.stack([r.positions for r in rollouts]))
+    if scene.action_dim:
+        actions = torch.as_tensor(np.stack([pin_actions(r.pin, scene.dt) for r in rollouts]))
+    else:
+        actions = positions.new_zeros(len(rollouts), positions.shape[1], 0)
     return Rollouts(
         positions=positions,
         params=torch.as_tensor(np.stack([r.params for r in rollouts])),
-        actions=positions.new_zeros(len(rollouts), positions.shape[1], 0),
+        actions=actions,
         instance=torch.as_tensor(rollouts[0].instance),
         rigid=torch.as_tensor(rollouts[0].rigid),
         param_low=torch.as_tensor(scene.param_low, dtype=torch.float32),

@@ -2,7 +2,8 @@
 
 :func:`replay` starts a scene from each FleX rollout's first frame with that rollout's parameter and
 simulates as many frames as FleX recorded; :func:`position_mse_x1e4` compares two sets of rollouts
-frame by frame; :func:`rigid_fall_outcomes` summarises how RigidFall's cubes end up. The chaos floor
+frame by frame; :func:`rigid_fall_outcomes` summarises how RigidFall's cubes end up and
+:func:`mass_rope_outcomes` how MassRope's rope stretches and its mass turns. The chaos floor
 is the same engine against itself from a start shifted by ``jitter``: how far two runs of one world
 part when they start 1 mm apart, the scale any other world's error is read against.
 """
@@ -11,30 +12,27 @@ from __future__ import annotations
 
 import numpy as np
 
-from vgpl.data.flex_rollouts import FlexRollout
+from vgpl.data.flex_rollouts import FlexRollout, pin_actions, same_length
 from vgpl.sim.scene import RolloutSample, Scene
 
 
 def replay(scene: Scene, rollouts: list[FlexRollout], jitter: float = 0.0, seed: int = 0) -> np.ndarray:
-    """[R, T, N, 3] the scene's rollouts from each FleX rollout's frame 0 (positions, velocities when
-    recorded) and parameter, T = the FleX rollout's length; ``jitter`` (m) adds Gaussian noise of that
-    standard deviation to every start coordinate."""
-    if scene.action_dim:
-        raise ValueError(f"env '{scene.name}': replaying FleX rollouts drives no actions yet (RigidFall only)")
-    lengths = {r.positions.shape[0] for r in rollouts}
-    if len(lengths) != 1:
-        raise ValueError(f"FleX rollouts of different lengths {sorted(lengths)}: replay them in groups of one length")
+    """[R, T, N, 3] the scene's rollouts from each FleX rollout's frame 0 and parameter, T = the FleX
+    rollout's length. The start velocities are FleX's where recorded, else the scene's own start
+    (MassRope: its mass's kick); MassRope's pin follows FleX's recorded path. ``jitter`` (m) adds
+    Gaussian noise of that standard deviation to every start coordinate."""
+    n_frames = same_length(rollouts)
     for r in rollouts:
         if r.positions.shape[1] != scene.n_particles or not np.array_equal(r.instance, scene.instance):
             raise ValueError(f"FleX rollout {r.name}: {r.positions.shape[1]} particles in instances {np.bincount(r.instance).tolist()}, "
                              f"env '{scene.name}' has {scene.n_particles} in {np.bincount(scene.instance).tolist()}")
-    n_frames = lengths.pop()
     rng = np.random.default_rng(seed)
     samples = []
     for r in rollouts:
         start = r.positions[0] + (rng.normal(0.0, jitter, r.positions[0].shape) if jitter > 0 else 0.0)
-        velocity = None if r.velocities is None else r.velocities[0]
-        samples.append(RolloutSample(start.astype(np.float32), r.params, np.zeros((n_frames, 0), np.float32), velocity))
+        velocity = scene.initial_velocities() if r.velocities is None else r.velocities[0]
+        actions = pin_actions(r.pin, scene.dt) if scene.action_dim else np.zeros((n_frames, 0), np.float32)
+        samples.append(RolloutSample(start.astype(np.float32), r.params, actions, velocity))
     n_steps, scene.n_steps = scene.n_steps, n_frames
     try:
         return scene.simulate(samples).positions.numpy()
@@ -76,3 +74,30 @@ def rigid_fall_outcomes(positions: np.ndarray, instance: np.ndarray, gravity: np
         "bottom_slide": [float(slide.min()), float(slide.max())],
         "first_contact": [int(first.min()), int(first.max())],
     }
+
+
+def mass_rope_outcomes(positions: np.ndarray, n_mass: int, rest_length: float) -> dict:
+    """How MassRope's rope and mass move, from [R, T, N, 3] positions whose first ``n_mass`` rows are
+    the mass, then the rope from its tie to the pin (the last row); ``rest_length``: the unstretched
+    length from the mass's tied (last) particle to the pin (m).
+
+    rope_stretch: [min, max] over rollouts of the mean over frames of length / rest_length - 1;
+    rope_stretch_peak: the largest stretch at any frame; mass_turn: [min, max] of the largest angle
+    (degrees) the mass turns from its frame-0 orientation; mass_drop: [min, max] of how far (m) the
+    mass's centroid falls below its start; pin_travel: [min, max] RMS horizontal distance (m) of the
+    pin from its frame-0 position.
+    """
+    chain = positions[:, :, n_mass - 1 :]
+    stretch = np.linalg.norm(np.diff(chain, axis=2), axis=-1).sum(-1) / rest_length - 1.0  # [R, T]
+    mass = positions[:, :, :n_mass]
+    centred = mass - mass.mean(2, keepdims=True)
+    cov = np.einsum("rtki,rkj->rtij", centred, centred[:, 0])
+    u, _, vh = np.linalg.svd(cov)
+    trace = np.trace(u @ vh, axis1=-2, axis2=-1)  # rotation from frame 0 (mass layouts are exactly rigid)
+    angle = np.degrees(np.arccos(np.clip((trace - 1.0) / 2.0, -1.0, 1.0)))  # [R, T]
+    drop = mass[:, :1, :, 1].mean(-1) - mass[..., 1].mean(-1)
+    pin = positions[:, :, -1, :]
+    travel = np.sqrt((((pin - pin[:, :1])[..., [0, 2]]) ** 2).sum(-1).mean(-1))
+    span = lambda a: [round(float(a.min()), 4), round(float(a.max()), 4)]  # noqa: E731
+    return {"rope_stretch": span(stretch.mean(1)), "rope_stretch_peak": round(float(stretch.max()), 4), "mass_turn": span(angle.max(1)),
+            "mass_drop": span(drop.max(1)), "pin_travel": span(travel)}

@@ -124,6 +124,10 @@ class Scene:
         """Draw one rollout's initial state, parameters (or use ``params`` [P]) and actions."""
         raise NotImplementedError
 
+    def initial_velocities(self) -> np.ndarray | None:
+        """[N, 3] the velocities every rollout starts with, or None: at rest."""
+        return None
+
     # ---- hooks -------------------------------------------------------------------------------
     def prepare(self, params: torch.Tensor, actions: torch.Tensor) -> dict:
         """Per-batch tensors derived from parameters ([B, P]) and actions ([B, T, A])."""
@@ -235,12 +239,16 @@ def rotation_y(angle: float) -> np.ndarray:
     return np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
 
 
-def random_walk_1d(rng: np.random.Generator, n_steps: int, dt: float, noise: float, spring: float, damping: float) -> tuple[np.ndarray, np.ndarray]:
-    """Mean-reverting random walk of a kinematic actuator (as the original scenes: v += U(-a, a) - k x per frame).
+def random_walk_1d(
+    rng: np.random.Generator, n_steps: int, dt: float, noise: float, spring: float, damping: float, start: float = 0.0
+) -> tuple[np.ndarray, np.ndarray]:
+    """Mean-reverting random walk of a kinematic actuator, as the authors' scenes drive theirs: each
+    frame v = v (1 - damping) + U(-noise, noise) - spring x, then x += v dt, with x the world
+    coordinate (so the walk is pulled toward 0 from ``start``).
 
-    Returns positions and velocities, each [n_steps]; position 0 and velocity 0 at frame 0.
+    Returns positions and velocities, each [n_steps]; position ``start`` and velocity 0 at frame 0.
     """
-    x, v = np.zeros(n_steps), np.zeros(n_steps)
+    x, v = np.full(n_steps, float(start)), np.zeros(n_steps)
     kicks = rng.uniform(-noise, noise, size=n_steps)
     for t in range(1, n_steps):
         v[t] = v[t - 1] * (1.0 - damping) + kicks[t] - spring * x[t - 1]
