@@ -30,6 +30,7 @@ from vgpl.tasks.stage import (
     validate_final,
 )
 from vgpl.tasks.stage import fit as stage_fit
+from vgpl.tasks.stage_folder import StageFolderError
 
 
 class SlowRegression(L.LightningModule):
@@ -393,3 +394,60 @@ def test_a_training_whose_loss_turns_nan_stops_with_the_stage_and_step_and_saves
         stage_fit(cfg, "toy", cfg.model.dynamics, DivergingRegression(at_step=9), data)
     saved = torch.load(tmp_path / "toy" / "last.ckpt", weights_only=False)
     assert saved["global_step"] == 8 and all(bool(torch.isfinite(w).all()) for w in saved["state_dict"].values())
+
+
+def _toy_stage(tmp_path, *overrides):
+    with initialize_config_dir(str(REPO / "conf"), version_base="1.3"):
+        cfg = compose("config", overrides=[f"paths.ckpt_dir={tmp_path}", f"paths.output_dir={tmp_path}", "model.dynamics.trainer.max_time=null",
+                                           "model.dynamics.trainer.max_steps=8", "trainer.max_epochs=-1", "trainer.enable_progress_bar=false",
+                                           "model.dynamics.trainer.val_check_interval=4", "trainer.limit_val_batches=1", *overrides])
+    data = L.LightningDataModule.from_datasets(TensorDataset(torch.randn(64, 2), torch.randn(64, 1)),
+                                               TensorDataset(torch.randn(8, 2), torch.randn(8, 1)), batch_size=4)
+    return cfg, data
+
+
+def test_a_trained_stage_folder_is_refused_unless_resumed_or_overwritten(tmp_path):
+    """A new training over a trained last.ckpt (here with max_steps=0, which would have saved step 0
+    over it) is refused naming the folder and both ways out, and leaves the checkpoint as it was;
+    ckpt_path=last resumes it and overwrite=true trains it again from scratch."""
+    cfg, data = _toy_stage(tmp_path)
+    stage_fit(cfg, "toy", cfg.model.dynamics, ValidatedRegression(0.0), data)
+    trained = (tmp_path / "toy" / "last.ckpt").read_bytes()
+    again, _ = _toy_stage(tmp_path, "model.dynamics.trainer.max_steps=0")
+    with pytest.raises(StageFolderError, match=rf"{tmp_path / 'toy'}: holds a trained checkpoint \(last.ckpt\).*ckpt_path=last.*overwrite=true"):
+        stage_fit(again, "toy", again.model.dynamics, ValidatedRegression(0.0), data)
+    assert (tmp_path / "toy" / "last.ckpt").read_bytes() == trained
+    resumed, _ = _toy_stage(tmp_path, "ckpt_path=last", "model.dynamics.trainer.max_steps=12")
+    assert stage_fit(resumed, "toy", resumed.model.dynamics, ValidatedRegression(0.0), data)[0].global_step == 12
+    fresh, _ = _toy_stage(tmp_path, "overwrite=true", "model.dynamics.trainer.max_steps=4")
+    assert stage_fit(fresh, "toy", fresh.model.dynamics, ValidatedRegression(0.0), data)[0].global_step == 4
+    assert torch.load(tmp_path / "toy" / "last.ckpt", weights_only=False)["global_step"] == 4
+    maybe, _ = _toy_stage(tmp_path, "overwrite=maybe")
+    with pytest.raises(ValueError, match="overwrite='maybe': expected true or false"):
+        stage_fit(maybe, "toy", maybe.model.dynamics, ValidatedRegression(0.0), data)
+
+
+class LockCheck(ValidatedRegression):
+    """Tries, at its first step, to start a second training of the same stage folder."""
+
+    def __init__(self, cfg, data) -> None:
+        super().__init__(0.0)
+        self.cfg, self.data, self.refusal = cfg, data, None
+
+    def on_train_start(self) -> None:
+        try:
+            stage_fit(self.cfg, "toy", self.cfg.model.dynamics, ValidatedRegression(0.0), self.data)
+        except StageFolderError as error:
+            self.refusal = str(error)
+
+
+def test_a_second_training_of_a_stage_folder_is_refused_while_the_first_runs(tmp_path):
+    """Two trainings of one folder would leave one's config.yaml beside the other's last.ckpt and mix
+    their TensorBoard events: the second is refused (by an OS lock, released when the first ends)."""
+    cfg, data = _toy_stage(tmp_path)
+    other, _ = _toy_stage(tmp_path, "overwrite=true")
+    model = LockCheck(other, data)
+    stage_fit(cfg, "toy", cfg.model.dynamics, model, data)
+    assert model.refusal is not None and "another training is writing this stage folder" in model.refusal and str(tmp_path / "toy") in model.refusal
+    assert torch.load(tmp_path / "toy" / "last.ckpt", weights_only=False)["global_step"] == 8  # the first run's, alone
+    stage_fit(other, "toy", other.model.dynamics, ValidatedRegression(0.0), data)  # the lock is free again once the first ended

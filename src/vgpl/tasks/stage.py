@@ -15,6 +15,7 @@ from omegaconf import DictConfig, OmegaConf
 from vgpl.checkpoint import check_resume
 from vgpl.hardware import precision_warning
 from vgpl.models.step_learning_rate import training_clock
+from vgpl.tasks.stage_folder import hold_stage_folder
 from vgpl.weight_averaging import ExponentialMovingAverage
 
 log = logging.getLogger(__name__)
@@ -63,7 +64,9 @@ def fit(cfg: DictConfig, stage: str, stage_cfg: DictConfig, model: L.LightningMo
     ``stage_cfg.trainer`` overrides the ``trainer`` group for this stage; ``stage_cfg.ema.decay``
     (when set) validates and saves an exponential moving average of the weights
     (vgpl.weight_averaging); ``stage_cfg.snapshot_every_n_steps`` (when set) keeps a
-    ``step<N>.ckpt`` every N steps beside last.ckpt. Returns the trainer and the path of last.ckpt.
+    ``step<N>.ckpt`` every N steps beside last.ckpt. The run holds the folder while it trains
+    (vgpl.tasks.stage_folder): a second training of it is refused, and so is a new training over a
+    trained last.ckpt unless ``overwrite=true``. Returns the trainer and the path of last.ckpt.
     """
     check_batch_size(stage, stage_cfg)
     folder = stage_dir(cfg, stage)
@@ -76,7 +79,14 @@ def fit(cfg: DictConfig, stage: str, stage_cfg: DictConfig, model: L.LightningMo
             ckpt_path = None
     if ckpt_path is not None:
         check_resume(ckpt_path, model, OmegaConf.select(cfg, "env.name"))  # before the folder gets this run's config and logs
-    folder.mkdir(parents=True, exist_ok=True)
+    overwrite = cfg.get("overwrite", False)
+    if not isinstance(overwrite, bool):
+        raise ValueError(f"overwrite={overwrite!r}: expected true or false")
+    with hold_stage_folder(folder, resuming=ckpt_path is not None, overwrite=overwrite):
+        return _fit(cfg, stage, stage_cfg, model, datamodule, monitor, folder, ckpt_path)
+
+
+def _fit(cfg, stage, stage_cfg, model, datamodule, monitor, folder: Path, ckpt_path) -> tuple[L.Trainer, Path]:
     saved = OmegaConf.to_container(cfg, resolve=True)
     saved["stage"] = stage
     saved["stage_class"] = f"{type(model).__module__}.{type(model).__name__}"
