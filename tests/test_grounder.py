@@ -98,6 +98,14 @@ def test_video_files_and_png_folders_are_read_as_rgb_frames(tmp_path):
     assert video[0, 60, 20, 0] > 150 and video[0, 60, 140, 0] < 50
 
 
+def test_a_non_hdf5_h5_file_is_named_as_a_video_input(tmp_path):
+    from vgpl.data.video_file import read_video
+
+    (tmp_path / "clip.h5").write_bytes(b"not an HDF5 file")
+    with pytest.raises(VideoFileError, match=r"clip.h5: not a readable HDF5 file \(.*\); task.video takes a dataset shard .h5"):
+        read_video(tmp_path / "clip.h5")
+
+
 def test_png_frames_are_read_in_natural_order_and_must_be_rgb(tmp_path):
     """frame_0.png ... frame_11.png, as ffmpeg's %d.png names them: 2 before 10, not after 1."""
     frames = np.zeros((12, 8, 8, 3), np.uint8)

@@ -70,6 +70,19 @@ def test_inconsistent_shape_is_named(shard_file, tmp_path):
         validate(broken)
 
 
+def test_float64_positions_are_refused_by_name(shard_file, tmp_path):
+    """A shard written by other code in float64 (it used to fail deep in training with "mat1 and
+    mat2 must have the same dtype")."""
+    wide = tmp_path / "wide.h5"
+    shutil.copy(shard_file, wide)
+    with h5py.File(wide, "a") as f:
+        positions = f["positions"][()]
+        del f["positions"]
+        f["positions"] = positions.astype(np.float64)
+    with pytest.raises(DatasetError, match=r"wide.h5: dataset 'positions' has dtype float64, expected float32"):
+        validate(wide)
+
+
 def test_missing_file_is_named(tmp_path):
     with pytest.raises(DatasetError, match="nope.h5: no such dataset file"):
         validate(tmp_path / "nope.h5")

@@ -260,6 +260,11 @@ def test_local_launcher_runs_a_two_job_sweep_in_parallel_processes(tmp_path):
     (["data.n_rollouts=abc"], r"data\.n_rollouts='abc': expected an integer"),
     (["data.train_fraction=most"], r"data\.train_fraction='most': expected a number"),
     (["data.n_rollouts=2"], r"data\.n_rollouts=2 with data\.train_fraction=0\.8 leaves the test split empty .* at least 8 rollouts"),
+    (["data.batch_size=0"], r"data\.batch_size=0: expected an integer >= 1"),
+    (["data.processes=1.5"], r"data\.processes=1\.5: expected an integer"),
+    (["data.worker=a"], r"data\.worker='a': expected an integer"),
+    (["seed=abc"], r"seed='abc': expected an integer"),
+    (["data.render=maybe"], r"data\.render='maybe': expected true or false"),
 ])
 def test_bad_sizes_are_refused_by_their_key_before_anything_is_simulated(tmp_path, overrides, message):
     with pytest.raises(ValueError, match=message):
@@ -277,3 +282,62 @@ def test_an_unwritable_data_folder_is_found_before_any_simulation(tmp_path):
         (tmp_path / "ro").mkdir(mode=0o500)
     with pytest.raises(PermissionError, match=r"ro/rigid_fall: cannot write the dataset there \(data\.root\).*nothing was simulated"):
         generate(config(tmp_path / "ro"))
+
+
+def _edit_shard(path: Path, **attrs) -> None:
+    with h5py.File(path, "r+") as f:
+        for key, value in attrs.items():
+            if key == "params":
+                f["params"][0] = value
+            else:
+                f.attrs[key] = value
+
+
+def test_shards_that_do_not_belong_to_their_folder_are_refused_naming_the_attribute(tmp_path):
+    """Each of these used to train with rc 0: another env's shard, a shard of another seed copied
+    into the split, and parameters outside the env's range with a widened range written into the
+    file. The error names the file, the attribute and both values."""
+    import shutil
+
+    from vgpl.data.trajectories import load_split
+
+    generate(config(tmp_path / "a", "data.render=false"))
+    generate(config(tmp_path / "b", "data.render=false", "seed=1"))
+    assert load_split(tmp_path / "a", "rigid_fall", "train").positions.shape[0] == 6  # the folder as generated reads
+
+    def case(name: str) -> Path:
+        shutil.copytree(tmp_path / "a", tmp_path / name)
+        return tmp_path / name / "rigid_fall" / "train"
+
+    other_env = case("env")
+    _edit_shard(other_env / "shard_00001.h5", env="mass_rope")
+    with pytest.raises(DatasetError, match=r"shard_00001.h5: attribute env='mass_rope', expected 'rigid_fall', the env of its folder"):
+        load_split(tmp_path / "env", "rigid_fall", "train")
+    other_seed = case("seed")
+    shutil.copy(tmp_path / "b/rigid_fall/train/shard_00000.h5", other_seed / "shard_00009.h5")
+    with pytest.raises(DatasetError, match=r"shard_00009.h5: attribute config_hash=\w+, but .*dataset.json records config_hash=\w+"):
+        load_split(tmp_path / "seed", "rigid_fall", "train")
+    widened = case("range")
+    _edit_shard(widened / "shard_00002.h5", params=[-25.0], param_low=np.array([-30.0], np.float32))
+    with pytest.raises(DatasetError, match=r"shard_00002.h5: attribute param_low=\[-30.0\], but .*dataset.json records param_low=\[-15.0\]"):
+        load_split(tmp_path / "range", "rigid_fall", "train")
+
+
+def test_a_damaged_video_chunk_is_named_and_a_resumed_generation_writes_the_shard_again(tmp_path):
+    """A damaged gzip chunk of the video (h5py: "filter returned failure") is one DatasetError
+    naming the file; a resumed task=generate reads every chunk of the shards it finds, so it
+    writes that shard again instead of counting it complete."""
+    from vgpl.data.trajectories import load_split
+
+    first = generate(config(tmp_path))
+    clean = Path(first["shards"][1]).read_bytes()
+    with h5py.File(first["shards"][1], "r") as f:
+        chunk = f["images"].id.get_chunk_info(0)
+    with open(first["shards"][1], "r+b") as f:  # overwrite the middle of the first video chunk
+        f.seek(chunk.byte_offset + chunk.size // 2)
+        f.write(b"\xff" * 64)
+    with pytest.raises(DatasetError, match=r"shard_00001.h5: its data cannot be read \(.*\): a damaged file or copy"):
+        load_split(tmp_path, "rigid_fall", "train", images=True)
+    again = generate(config(tmp_path))
+    assert again["written"] == 1 and Path(first["shards"][1]).read_bytes() == clean
+    assert load_split(tmp_path, "rigid_fall", "train", images=True).images.shape[0] == 6

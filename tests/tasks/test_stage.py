@@ -451,3 +451,13 @@ def test_a_second_training_of_a_stage_folder_is_refused_while_the_first_runs(tmp
     assert model.refusal is not None and "another training is writing this stage folder" in model.refusal and str(tmp_path / "toy") in model.refusal
     assert torch.load(tmp_path / "toy" / "last.ckpt", weights_only=False)["global_step"] == 8  # the first run's, alone
     stage_fit(other, "toy", other.model.dynamics, ValidatedRegression(0.0), data)  # the lock is free again once the first ended
+
+
+@pytest.mark.parametrize(("override", "message"), [("model.dynamics.trainer.max_steps=3.5", r"model\.dynamics\.trainer\.max_steps=3\.5: expected an integer"),
+                                                   ("trainer.max_epochs=two", r"trainer\.max_epochs='two': expected an integer")])
+def test_a_step_count_that_is_not_a_whole_number_is_refused_before_the_folder_is_written(tmp_path, override, message):
+    """Lightning ran trainer.max_steps=3.5 as 4 steps without a word."""
+    cfg, data = _toy_stage(tmp_path, override)
+    with pytest.raises(ValueError, match=message):
+        stage_fit(cfg, "toy", cfg.model.dynamics, ValidatedRegression(0.0), data)
+    assert not (tmp_path / "toy").exists()

@@ -6,6 +6,8 @@ One file per shard of a split. Every problem with a file is reported as one
 
 from __future__ import annotations
 
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 import h5py
@@ -48,6 +50,17 @@ IMAGES = ("u", ("R", "T", "H", "W", 3))  # optional: present when rendered
 
 class DatasetError(ValueError):
     """A dataset file is missing, unreadable, or does not follow the schema."""
+
+
+@contextmanager
+def reading(path: str | Path) -> Iterator[None]:
+    """Reads of ``path``'s data inside turn the OS's error on a damaged chunk (h5py's ``OSError``:
+    "filter returned failure", a checksum) into one DatasetError naming the file."""
+    try:
+        yield
+    except OSError as error:
+        raise DatasetError(f"{path}: its data cannot be read ({error}): a damaged file or copy; task=generate rewrites it "
+                           "(it verifies every shard it resumes), or delete it") from None
 
 
 def _check_shape(path: Path, key: str, shape: tuple, template: tuple, dims: dict) -> None:
@@ -108,6 +121,8 @@ def validate(path: str | Path) -> dict:
             ds = f[key]
             if ds.dtype.kind != kind:
                 raise DatasetError(f"{path}: dataset '{key}' has dtype {ds.dtype}, expected kind '{kind}'")
+            if kind == "f" and ds.dtype != np.float32:
+                raise DatasetError(f"{path}: dataset '{key}' has dtype {ds.dtype}, expected float32 (as vgpl writes it)")
             _check_shape(path, key, ds.shape, template, dims)
         if "images" in f:
             _check_shape(path, "images", f["images"].shape, IMAGES[1], dims)

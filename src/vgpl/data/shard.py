@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import logging
 import os
 import uuid
 from collections.abc import Callable, Iterator
@@ -12,7 +13,9 @@ import h5py
 import numpy as np
 
 from vgpl import __version__
-from vgpl.data.schema import DATASETS, FORMAT_VERSION, DatasetError, check_values, validate
+from vgpl.data.schema import DATASETS, FORMAT_VERSION, DatasetError, check_values, reading, validate
+
+log = logging.getLogger(__name__)
 
 
 @dataclass
@@ -78,7 +81,7 @@ def read_shard(path: str | Path, images: bool = True, rollouts: int | None = Non
 
 def _load(path: str | Path, info: dict, images: bool, rollouts: int | None, frames: int | None) -> Shard:
     """The arrays of a shard file ``validate`` has passed (its ``info``), their values checked."""
-    with h5py.File(path, "r") as f:
+    with h5py.File(path, "r") as f, reading(path):
         arrays = {key: f[key][:rollouts] if template[0] == "R" else f[key][()] for key, (_, template) in DATASETS.items()}
         video = f["images"][:rollouts, :frames] if images and "images" in f else None
     check_values(path, arrays, info["attrs"]["param_low"], info["attrs"]["param_high"])
@@ -136,4 +139,19 @@ def shard_is_complete(path: Path, config_hash: str) -> bool:
             "choose another data.root or delete the folder"
         )
     _load(path, info, images=False, rollouts=None, frames=None)  # its values too: a shard with NaN is never counted as done
+    try:
+        read_every_chunk(path)
+    except DatasetError as error:
+        log.warning("%s; it is written again", error)
+        return False
     return True
+
+
+def read_every_chunk(path: Path) -> None:
+    """Read every dataset of the shard ``path`` rollout by rollout (a video one rollout at a time,
+    not all in memory): DatasetError naming the file when a chunk is damaged."""
+    with h5py.File(path, "r") as f, reading(path):
+        for key in f:
+            data = f[key]
+            for i in range(data.shape[0] if data.ndim else 1):
+                data[i] if data.ndim else data[()]

@@ -7,6 +7,7 @@ from pathlib import Path
 import h5py
 import torch
 
+from vgpl.data.schema import reading
 from vgpl.data.shard import video_frame_shape
 
 
@@ -40,7 +41,8 @@ class StreamedVideos:
         path, i = self.sources[int(r)]
         if path not in self._files:
             self._files[path] = h5py.File(path, "r")
-        return torch.from_numpy(self._files[path]["images"][i, frames])
+        with reading(path):
+            return torch.from_numpy(self._files[path]["images"][i, frames])
 
     def __getstate__(self) -> dict:
         return {**self.__dict__, "_files": {}}  # open h5py files cannot cross into worker processes

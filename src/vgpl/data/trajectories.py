@@ -7,6 +7,7 @@ kinematic boundaries. Statistics come from the training split only and travel wi
 
 from __future__ import annotations
 
+import json
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -16,7 +17,7 @@ import numpy as np
 import torch
 from torch.utils.data import DataLoader, Dataset
 
-from vgpl.data.schema import DatasetError
+from vgpl.data.schema import DatasetError, reading
 from vgpl.data.shard import read_first_rollouts, video_frame_shape
 from vgpl.data.streamed_videos import StreamedVideos
 from vgpl.sim.scene import Scene
@@ -57,6 +58,9 @@ def load_split(root: str | Path, env: str, split: str, images: bool = False, max
     # shard files hold consecutive rollouts in order, so the first files suffice
     last = None if max_rollouts is None else first_rollout + max_rollouts
     read = list(read_first_rollouts(files, last))  # the video, if asked for, is read below, straight into one array
+    manifest = read_manifest(Path(root) / env)
+    for f, shard in read:
+        check_belongs(f, shard, env, manifest)
     shards = [shard for _, shard in read]
     seen: dict[int, Path] = {}
     for f, shard in read:  # a stray copy of a shard would train on its rollouts twice
@@ -80,6 +84,45 @@ def load_split(root: str | Path, env: str, split: str, images: bool = False, max
     )
 
 
+def read_manifest(folder: Path) -> dict | None:
+    """The folder's ``dataset.json`` (the configuration that generated it), or None for a folder
+    written without one."""
+    path = folder / "dataset.json"
+    if not path.exists():
+        return None
+    try:
+        return json.loads(path.read_text())
+    except (OSError, ValueError) as error:
+        raise DatasetError(f"{path}: unreadable ({error}); it records which configuration generated {folder}") from None
+
+
+def check_belongs(path: Path, shard, env: str, manifest: dict | None) -> None:
+    """Refuse a shard that is not of this folder: another env's (its ``env`` attribute), another
+    configuration's (``config_hash`` or ``seed`` against dataset.json), or with a parameter range
+    other than the one the folder was generated with. DatasetError names the file, the attribute
+    and both values."""
+    attrs = shard.attrs
+    if str(attrs["env"]) != env:
+        raise DatasetError(f"{path}: attribute env={str(attrs['env'])!r}, expected {env!r}, the env of its folder (a shard copied "
+                           "from another env's folder? remove it)")
+    if manifest is None:
+        return
+    where = path.parent.parent / "dataset.json"
+    for key in ("config_hash", "seed"):
+        if key in manifest and str(attrs[key]) != str(manifest[key]):
+            raise DatasetError(f"{path}: attribute {key}={attrs[key]!s}, but {where} records {key}={manifest[key]!s}: a shard of "
+                               "another configuration (copied into this split?); remove it, or generate it again here")
+    for key in ("param_low", "param_high"):
+        if key in manifest and not np.allclose(np.asarray(attrs[key], float), np.asarray(manifest[key], float)):
+            raise DatasetError(f"{path}: attribute {key}={np.asarray(attrs[key]).tolist()}, but {where} records {key}={manifest[key]}: "
+                               "its parameters were drawn from another range")
+    low, high = np.asarray(manifest.get("param_low", attrs["param_low"]), float), np.asarray(manifest.get("param_high", attrs["param_high"]), float)
+    out = ((shard.params < low - 1e-6 * (high - low)) | (shard.params > high + 1e-6 * (high - low))).any(1)
+    if out.any():
+        raise DatasetError(f"{path}: 'params' of rollout(s) {shard.rollout_ids[out].tolist()} lie outside [{low.tolist()}, {high.tolist()}], "
+                           f"the range {where} records")
+
+
 def _read_videos(sources: list[tuple[Path, int]]) -> torch.Tensor:
     """The videos at (shard file, index in it), in this order, into one uint8 array [R, T, H, W, 3]:
     each file opened once, and h5py reads each run of consecutive rollouts straight into it."""
@@ -96,7 +139,8 @@ def _read_videos(sources: list[tuple[Path, int]]) -> torch.Tensor:
             for k in range(1, len(rows) + 1):  # split into runs where row and index both step by one
                 if k == len(rows) or rows[k] != (rows[k - 1][0] + 1, rows[k - 1][1] + 1):
                     (row, i), n = rows[start], k - start
-                    h["images"].read_direct(out, np.s_[i : i + n], np.s_[row : row + n])
+                    with reading(path):
+                        h["images"].read_direct(out, np.s_[i : i + n], np.s_[row : row + n])
                     start = k
     return torch.from_numpy(out)
 

@@ -85,7 +85,12 @@ def _video_file(path: Path) -> np.ndarray:
 
 
 def _shard_rollout(path: Path, rollout: int) -> tuple[np.ndarray, np.ndarray | None]:
-    with h5py.File(path, "r") as f:
+    try:
+        f = h5py.File(path, "r")
+    except OSError as error:
+        raise VideoFileError(f"{path}: not a readable HDF5 file ({error}); task.video takes a dataset shard .h5, a video file or a "
+                             "folder of PNGs") from None
+    with f:
         n = f["rollout_ids"].shape[0] if "rollout_ids" in f else 0
     if not 0 <= rollout < n:
         raise VideoFileError(f"{path}: task.rollout={rollout}, the shard holds rollouts 0..{n - 1} (positions in the file)")

@@ -69,6 +69,24 @@ def plan_shards(n_rollouts: int, train_fraction: float, shard_size: int) -> list
     return plans
 
 
+def check_generate_options(cfg: DictConfig) -> None:
+    """Refuse, by key, a generation option of the wrong type or sign before anything is claimed
+    or written: the seed and the data sizes must be integers (sizes >= 1, ``data.worker`` >= 0),
+    ``data.render`` and ``data.progress`` booleans."""
+    data = cfg.data
+    integers = {"seed": (cfg.seed, 0), "data.batch_size": (data.batch_size, 1), "data.processes": (data.processes, 1),
+                "data.num_workers": (data.num_workers, 1), "data.worker": (data.worker, 0),
+                "data.compression_level": (data.compression_level, 0)}
+    for key, (value, low) in integers.items():
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise ValueError(f"{key}={value!r}: expected an integer")
+        if value < low:
+            raise ValueError(f"{key}={value}: expected an integer >= {low}")
+    for key in ("render", "progress"):
+        if not isinstance(data[key], bool):
+            raise ValueError(f"data.{key}={data[key]!r}: expected true or false")
+
+
 def check_writable(folder: Path) -> None:
     """Fail before any simulation when ``folder`` (data.root/<env>) cannot be created or written."""
     try:
@@ -139,8 +157,10 @@ def config_hash(env_cfg: DictConfig, data_cfg: DictConfig, seed: int) -> str:
 def dataset_claim(cfg: DictConfig, env: str, digest: str) -> DatasetClaim:
     """The claim of this run's configuration on ``data.root/<env>``."""
     data = cfg.data
+    scene = cfg.env.scene
     return DatasetClaim(Path(data.root) / env, digest, {"env": env, "seed": cfg.seed,
-                                                        **{k: data[k] for k in ("n_rollouts", "train_fraction", "shard_size", "render")}})
+                                                        **{k: data[k] for k in ("n_rollouts", "train_fraction", "shard_size", "render")},
+                                                        "param_low": [float(v) for v in scene.param_low], "param_high": [float(v) for v in scene.param_high]})
 
 
 def make_shard(cfg: DictConfig, plan: ShardPlan, digest: str, threads: int, progress=None) -> ShardPlan:
@@ -162,6 +182,7 @@ def generate(cfg: DictConfig) -> dict:
     each (on CPU, two single-threaded processes outrun one process with two threads).
     """
     data = cfg.data
+    check_generate_options(cfg)
     if not 0 <= data.worker < data.num_workers:
         raise ValueError(f"data.worker must be in [0, data.num_workers={data.num_workers}), got {data.worker}")
     if data.processes < 1:

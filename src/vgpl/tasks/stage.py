@@ -69,6 +69,7 @@ def fit(cfg: DictConfig, stage: str, stage_cfg: DictConfig, model: L.LightningMo
     trained last.ckpt unless ``overwrite=true``. Returns the trainer and the path of last.ckpt.
     """
     check_batch_size(stage, stage_cfg)
+    check_step_counts(cfg, stage_cfg, trainer_kwargs(cfg, stage_cfg))
     folder = stage_dir(cfg, stage)
     ckpt_path = cfg.get("ckpt_path")
     if ckpt_path == "last":
@@ -164,13 +165,28 @@ def spent_time_warning(checkpoint: str | Path | None, spent: float | None, limit
 
 
 def max_time_key(cfg: DictConfig, stage_cfg: DictConfig) -> str:
-    """The option a stage's max_time comes from: ``model.<name>.trainer.max_time`` when the stage
-    sets its own, else the ``trainer`` group's ``trainer.max_time``."""
-    if "max_time" in (stage_cfg.get("trainer") or {}):
+    """The option a stage's max_time comes from (``trainer_option``)."""
+    return trainer_option(cfg, stage_cfg, "max_time")
+
+
+def trainer_option(cfg: DictConfig, stage_cfg: DictConfig, option: str) -> str:
+    """The key a stage's trainer ``option`` comes from: ``model.<name>.trainer.<option>`` when the
+    stage sets its own, else the ``trainer`` group's ``trainer.<option>``."""
+    if option in (stage_cfg.get("trainer") or {}):
         for name, node in (cfg.get("model") or {}).items():
             if node is stage_cfg:
-                return f"model.{name}.trainer.max_time"
-    return "trainer.max_time"
+                return f"model.{name}.trainer.{option}"
+    return f"trainer.{option}"
+
+
+def check_step_counts(cfg: DictConfig, stage_cfg: DictConfig, kwargs: dict) -> None:
+    """Refuse a step or epoch count that is not a whole number, by its key (Lightning would run
+    ``max_steps=3.5`` as 4 steps without a word): ``max_steps`` and ``max_epochs`` are integers,
+    -1 for no limit, or null."""
+    for option in ("max_steps", "max_epochs"):
+        value = kwargs.get(option)
+        if value is not None and (isinstance(value, bool) or not isinstance(value, int) or value < -1):
+            raise ValueError(f"{trainer_option(cfg, stage_cfg, option)}={value!r}: expected an integer >= 0, or -1 for no limit")
 
 
 def duration(total_s: float) -> str:
