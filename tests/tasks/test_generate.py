@@ -341,3 +341,36 @@ def test_a_damaged_video_chunk_is_named_and_a_resumed_generation_writes_the_shar
     again = generate(config(tmp_path))
     assert again["written"] == 1 and Path(first["shards"][1]).read_bytes() == clean
     assert load_split(tmp_path, "rigid_fall", "train", images=True).images.shape[0] == 6
+
+
+def test_a_dataset_larger_than_the_free_space_is_refused_before_any_simulation(tmp_path, monkeypatch):
+    """The smallest size the shards left to write can take is set against the folder's free space."""
+    import shutil
+    from collections import namedtuple
+
+    usage = namedtuple("usage", "total used free")
+    monkeypatch.setattr(gen.shutil, "disk_usage", lambda folder: usage(10**9, 10**9 - 2 * 10**6, 2 * 10**6))  # 2 MB free
+    monkeypatch.setattr(gen, "simulate_shard", lambda *args, **kwargs: pytest.fail("simulated although the data cannot fit"))
+    with pytest.raises(OSError, match=r"rigid_fall: this dataset takes at least 8\.7 MB \(data.n_rollouts, data.render\), the disk has 2\.0 MB free"):
+        generate(config(tmp_path, "env.scene.n_steps=120"))  # 7 rollouts x 120 frames: 3.9 MB of arrays, 4.8 MB of video at a tenth of raw
+    assert not list((tmp_path / "rigid_fall").rglob("*.h5"))
+    monkeypatch.setattr(gen.shutil, "disk_usage", shutil.disk_usage)
+
+
+def test_a_full_disk_while_writing_names_the_folder_and_leaves_no_temporary_file(tmp_path, monkeypatch):
+    """h5py reports a full disk as "Can't write data (... errno = 28 ...)": one OSError naming the
+    folder and the free space, and the shard's temporary file removed."""
+    import h5py as real_h5py
+
+    import vgpl.data.shard as shard_module
+
+    class FullDisk(real_h5py.File):
+        def create_dataset(self, name, *args, **kwargs):
+            if name == "images":
+                raise OSError(28, "Can't write data (file write failed: errno = 28, error message = 'No space left on device')")
+            return super().create_dataset(name, *args, **kwargs)
+
+    monkeypatch.setattr(shard_module.h5py, "File", FullDisk)
+    with pytest.raises(OSError, match=r"rigid_fall/train: the disk is full \(\d+ MB free\) while writing shard_00000.h5; its temporary file was removed"):
+        generate(config(tmp_path))
+    assert not list(tmp_path.rglob("*.tmp")) and not list(tmp_path.rglob("shard_*.h5"))

@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+import errno
 import logging
 import os
+import shutil
 import uuid
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
@@ -60,9 +62,19 @@ def write_shard(path: str | Path, shard: Shard, compression_level: int = 4, plac
             for k, v in attrs.items():
                 f.attrs[k] = v
         place(tmp, path)
+    except OSError as error:
+        if disk_full(error):
+            raise OSError(errno.ENOSPC, f"{path.parent}: the disk is full ({shutil.disk_usage(path.parent).free / 1e6:.0f} MB free) while "
+                                        f"writing {path.name}; its temporary file was removed and no shard was placed") from None
+        raise
     finally:
         tmp.unlink(missing_ok=True)  # placed: gone already; failed (a full disk, an interrupt): not left behind
     return path
+
+
+def disk_full(error: OSError) -> bool:
+    """Whether ``error`` is a full disk (errno ENOSPC, which h5py puts in its message only)."""
+    return error.errno == errno.ENOSPC or "No space left on device" in str(error) or "errno = 28" in str(error)
 
 
 def temporary_path(path: Path) -> Path:

@@ -10,10 +10,12 @@ folder is refused, also while the first is running (vgpl.data.dataset_claim).
 
 from __future__ import annotations
 
+import errno
 import hashlib
 import json
 import logging
 import math
+import shutil
 import tempfile
 import time
 from concurrent.futures import as_completed
@@ -95,6 +97,36 @@ def check_writable(folder: Path) -> None:
             pass
     except OSError as e:
         raise PermissionError(f"{folder}: cannot write the dataset there (data.root): {e.strerror or e}; nothing was simulated") from e
+
+
+IMAGE_COMPRESSION_BOUND = 10.0  # gzip shrinks the rendered frames by less than this (they are mostly background)
+
+
+def smallest_size(scene: Scene, n_rollouts: int, render: bool) -> int:
+    """A lower bound on the bytes ``n_rollouts`` rollouts of ``scene`` take on disk: positions and
+    velocities (float32, stored uncompressed), actions and parameters, and with ``render`` the
+    frames at IMAGE_COMPRESSION_BOUND times smaller than raw."""
+    t, n = scene.n_steps, scene.n_particles
+    arrays = 4 * t * (2 * 3 * n + scene.action_dim) + 4 * len(scene.param_names) + 8
+    frames = t * scene.camera.height * scene.camera.width * 3 / IMAGE_COMPRESSION_BOUND if render else 0
+    return int(n_rollouts * (arrays + frames))
+
+
+def check_space(folder: Path, needed: int) -> None:
+    """Refuse, before any simulation, a dataset whose smallest size exceeds the free space of ``folder``."""
+    free = shutil.disk_usage(folder).free
+    if needed > free:
+        raise OSError(errno.ENOSPC, f"{folder}: this dataset takes at least {human_bytes(needed)} (data.n_rollouts, data.render), "
+                                    f"the disk has {human_bytes(free)} free; lower data.n_rollouts, pass data.render=false, or "
+                                    "choose another data.root; nothing was simulated")
+
+
+def human_bytes(n: float) -> str:
+    for unit in ("B", "KB", "MB", "GB", "TB"):
+        if n < 1000 or unit == "TB":
+            return f"{n:.0f} {unit}" if unit == "B" else f"{n:.1f} {unit}"
+        n /= 1000
+    return f"{n:.1f} TB"
 
 
 def rollout_rng(seed: int, rollout: int) -> np.random.Generator:
@@ -193,7 +225,10 @@ def generate(cfg: DictConfig) -> dict:
     check_writable(root)
     digest = config_hash(cfg.env, data, cfg.seed)
     todo = dataset_claim(cfg, scene.name, digest).claim(lambda: [p for p in plans if not shard_is_complete(p.path(root), digest)])
-    log.info("%s: %d shard(s) for this worker, %d already complete, writing %d under %s", scene.name, len(plans), len(plans) - len(todo), len(todo), root)
+    needed = smallest_size(scene, sum(len(p.rollouts) for p in todo), bool(data.render))
+    check_space(root, needed)  # the shards left to write (a resume's finished ones take their space already)
+    log.info("%s: %d shard(s) for this worker, %d already complete, writing %d (at least %s) under %s", scene.name, len(plans),
+             len(plans) - len(todo), len(todo), human_bytes(needed), root)
     start = time.perf_counter()
     n_rollouts = sum(len(p.rollouts) for p in todo)
     with tqdm(total=n_rollouts, desc=f"generate {scene.name}", unit="rollout", disable=not data.progress) as bar:
