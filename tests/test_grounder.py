@@ -154,3 +154,21 @@ def test_a_test_time_fit_moves_the_estimate_towards_the_videos_own_frames():
     fitted = grounder.ground(frames, n_future=3, test_time_fit=TestTimeFit(steps=5, lr=0.5))
     assert fitted.params["gravity"] != pytest.approx(amortised.params["gravity"], abs=1e-3)
     assert torch.equal(fitted.positions, amortised.positions)  # only P and Q are fitted
+
+
+def test_a_checkpoint_folder_of_mixed_envs_names_each_stages_env(tmp_path):
+    """A folder whose prior is of another env than its visual prior and module: one error listing
+    each stage's env (it used to blame the good visual/ and suggest an env= the Python API lacks)."""
+    from omegaconf import OmegaConf
+
+    from vgpl.grounder import Grounder
+
+    classes = {"dynamics": "vgpl.models.dynamics_prior.DynamicsPrior", "visual": "vgpl.models.visual_prior.VisualPrior",
+               "inference": "vgpl.models.inference.InferenceModule"}
+    for stage, cls in classes.items():
+        (tmp_path / stage).mkdir()
+        (tmp_path / stage / "last.ckpt").write_bytes(b"")  # never loaded: the envs are compared first
+        OmegaConf.save({"env": {"name": "rigid_fall" if stage == "dynamics" else "mass_rope"}, "stage_class": cls}, tmp_path / stage / "config.yaml")
+    with pytest.raises(GroundingInputError, match=r"its stages were trained on different envs \(.*dynamics/last.ckpt on 'rigid_fall', "
+                                                  r".*visual/last.ckpt on 'mass_rope', .*inference/last.ckpt on 'mass_rope'\)"):
+        Grounder.from_checkpoints(tmp_path)

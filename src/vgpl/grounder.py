@@ -20,8 +20,9 @@ from pathlib import Path
 
 import numpy as np
 import torch
+from omegaconf import OmegaConf
 
-from vgpl.checkpoint import load_stage, scene_of
+from vgpl.checkpoint import load_stage, saved_config, scene_of
 from vgpl.data.window_pool import pool_windows
 from vgpl.eval.grounding import observed_proposals
 from vgpl.eval.rollout import rollout
@@ -78,10 +79,18 @@ class Grounder:
         ``inference/`` and the prior the module was trained through (``dynamics/``, or the path
         ``dynamics``). ``observed`` None: the evaluation's length the pipeline was configured with."""
         ckpt_dir = Path(ckpt_dir)
-        prior, cfg = load_stage(Path(dynamics) if dynamics else ckpt_dir / "dynamics" / "last.ckpt", DynamicsPrior)
+        paths = {"dynamics": Path(dynamics) if dynamics else ckpt_dir / "dynamics" / "last.ckpt", "visual": ckpt_dir / "visual" / "last.ckpt",
+                 "inference": ckpt_dir / "inference" / "last.ckpt"}
+        envs = {path: OmegaConf.select(saved_config(path, cls, None), "env.name")
+                for path, cls in zip(paths.values(), (DynamicsPrior, VisualPrior, InferenceModule))}
+        if len(set(envs.values())) > 1:
+            trained = ", ".join(f"{path} on '{env}'" for path, env in envs.items())
+            raise GroundingInputError(f"{ckpt_dir}: its stages were trained on different envs ({trained}); a Grounder takes the "
+                                      "three stages of one pipeline")
+        prior, cfg = load_stage(paths["dynamics"], DynamicsPrior)
         scene = scene_of(cfg)
-        visual, _ = load_stage(ckpt_dir / "visual" / "last.ckpt", VisualPrior, env=scene.name, n_particles=scene.n_particles)
-        inference, inference_cfg = load_stage(ckpt_dir / "inference" / "last.ckpt", InferenceModule, env=scene.name, n_particles=scene.n_particles)
+        visual, _ = load_stage(paths["visual"], VisualPrior, env=scene.name, n_particles=scene.n_particles)
+        inference, inference_cfg = load_stage(paths["inference"], InferenceModule, env=scene.name, n_particles=scene.n_particles)
         seen = observed if observed is not None else int(inference_cfg.eval.get("observed") or inference_cfg.model.inference.observed)
         pool = inference_cfg.model.inference.get("window_pool", "last")
         return cls(visual, inference, prior, scene, seen, int(cfg.env.get("start_frame", 0)), pool)

@@ -374,3 +374,20 @@ def test_a_full_disk_while_writing_names_the_folder_and_leaves_no_temporary_file
     with pytest.raises(OSError, match=r"rigid_fall/train: the disk is full \(\d+ MB free\) while writing shard_00000.h5; its temporary file was removed"):
         generate(config(tmp_path))
     assert not list(tmp_path.rglob("*.tmp")) and not list(tmp_path.rglob("shard_*.h5"))
+
+
+def test_a_dataset_generated_without_a_test_split_says_so_instead_of_asking_to_generate_one(tmp_path):
+    from vgpl.data.trajectories import load_split
+
+    generate(config(tmp_path, "data.n_rollouts=2", "data.train_fraction=1.0", "data.render=false"))
+    with pytest.raises(DatasetError, match=r"rigid_fall/test: no test split: .*dataset.json records data.train_fraction=1.0, so generation writes none"):
+        load_split(tmp_path, "rigid_fall", "test")
+
+
+def test_a_local_sweep_names_every_failed_job_not_only_the_first(tmp_path):
+    proc = run_py("-m", "hydra/launcher=local", "task=generate", "env=rigid_fall", "data.n_rollouts=abc,xyz", "data.render=false",
+                  "data.progress=false", "threads=1", f"data.root={tmp_path}/data", f"hydra.sweep.dir={tmp_path}/sweep", cwd=tmp_path)
+    out = proc.stdout + proc.stderr
+    assert proc.returncode != 0
+    assert "job 0 (task=generate env=rigid_fall data.n_rollouts=abc" in out and "data.n_rollouts='abc': expected an integer" in out
+    assert "job 1 (task=generate env=rigid_fall data.n_rollouts=xyz" in out and "data.n_rollouts='xyz': expected an integer" in out

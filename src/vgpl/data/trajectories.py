@@ -52,6 +52,10 @@ def load_split(root: str | Path, env: str, split: str, images: bool = False, max
     folder = Path(root) / env / split
     files = sorted(folder.glob("shard_*.h5"))
     if not files:
+        manifest = read_manifest(Path(root) / env)
+        if split == "test" and manifest is not None and float(manifest.get("train_fraction", 0.0)) >= 1.0:
+            raise DatasetError(f"{folder}: no test split: {Path(root) / env / 'dataset.json'} records data.train_fraction=1.0, so generation "
+                               f"writes none; generate a dataset with data.train_fraction below 1 (into another data.root) to evaluate")
         raise DatasetError(f"{folder}: no shard_*.h5 files (generate them with task=generate env={env})")
     if first_rollout < 0:
         raise ValueError(f"load_split: first_rollout={first_rollout}, expected >= 0")
