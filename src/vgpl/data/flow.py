@@ -1,6 +1,6 @@
 """Optical flow for the DensePhysNet baseline: the simulator's (each particle's pixel motion
 splatted into a flow image: privileged, noise-free) or estimated from the rendered frames
-(OpenCV's Farneback, as the paper estimated it from video), and how far the two are apart."""
+(OpenCV's Farneback; the paper used Liu (2009), which vgpl does not carry), and how far the two are apart."""
 
 from __future__ import annotations
 
