@@ -5,6 +5,7 @@ under a trainer.max_time over the same share of the time budget too, whichever e
 from __future__ import annotations
 
 import lightning as L
+import numpy as np
 import pytest
 import torch
 from torch.utils.data import DataLoader
@@ -125,3 +126,81 @@ def test_the_encoder_runs_channels_last_and_computes_what_the_nchw_layout_does()
         loaded.load_state_dict(nchw.state_dict())
         assert loaded.encoder[0][0].weight.is_contiguous(memory_format=torch.channels_last)
         assert torch.allclose(loaded(frames)[0], model(frames)[0], atol=1e-6)
+
+
+def test_unproject_inverts_the_cameras_projection():
+    from vgpl.sim.envs import make_scene
+
+    camera = make_scene("rigid_fall").camera
+    points = torch.tensor([[0.1, 0.3, 0.05], [-0.2, 0.0, 0.4], [0.3, 0.7, -0.1]])
+    projected = camera.project(points)
+    assert torch.allclose(camera.unproject(projected[:, :2], projected[:, 2]), points, atol=1e-6)
+
+
+def test_the_spatial_prior_places_each_slot_on_the_cameras_ray_through_its_attended_pixel(tmp_path):
+    """architecture=spatial: a slot attending uniformly sits at the image centre at the training
+    split's mean depth; in general every slot's world position projects back onto the pixel its
+    heatmap attends to, through the camera saved with the checkpoint."""
+    from vgpl.checkpoint import load_stage  # noqa: F401  (the loader's class check runs on this class)
+    from vgpl.sim.envs import make_scene
+
+    camera = make_scene("rigid_fall").camera
+    torch.manual_seed(0)
+    model = VisualPrior(n_particles=6, n_instances=2, channels=[4, 8, 8], architecture="spatial", head_width=8).eval()
+    model.pos_mean.copy_(torch.tensor([0.1, 0.3, 0.05]))
+    model.pos_std.copy_(torch.tensor([0.1, 0.2, 0.1]))
+    model.set_camera(camera)
+    frames = torch.randint(0, 255, (2, 4, 120, 160, 3), dtype=torch.uint8)
+    with torch.no_grad():
+        model.slots.heat.weight.zero_()
+        model.slots.heat.bias.zero_()
+        model.slots.depth.weight.zero_()
+        model.slots.depth.bias.zero_()
+        centre = camera.project(model.propose(frames)[0].reshape(-1, 3))
+    assert torch.allclose(centre[:, :2], torch.tensor([80.0, 60.0]), atol=1e-3)  # (u, v) of the image centre
+    mean_depth = camera.project(model.pos_mean[None])[0, 2]
+    assert torch.allclose(centre[:, 2], mean_depth, atol=1e-4)
+
+    trained = VisualPrior(n_particles=6, n_instances=2, channels=[4, 8, 8], architecture="spatial", head_width=8).eval()
+    trained.pos_mean.copy_(model.pos_mean), trained.pos_std.copy_(model.pos_std)
+    trained.set_camera(camera)
+    with torch.no_grad():
+        positions, logits = trained.propose(frames)
+        maps, x = [], trained.to_input(frames)
+        for block in trained.trunk:
+            x = block(x)
+            maps.append(x)
+        uv, _, _ = trained.slots(maps[-2], maps[-1], (120, 160))
+    assert positions.shape == (2, 4, 6, 3) and logits.shape == (2, 4, 6, 2)
+    assert torch.allclose(camera.project(positions.reshape(2, -1, 3))[..., :2], uv, atol=1e-3)
+    reloaded = VisualPrior(**trained.hparams).eval()
+    reloaded.load_state_dict(trained.state_dict())  # the camera travels with the weights
+    assert torch.equal(reloaded.world_to_camera, trained.world_to_camera)
+    with torch.no_grad():
+        assert torch.allclose(reloaded.propose(frames)[0], positions)
+    with pytest.raises(ValueError, match="model.visual.net.architecture='dense': expected paper or spatial"):
+        VisualPrior(n_particles=6, n_instances=2, architecture="dense")
+
+
+def test_rigid_fit_proposes_each_rigid_instance_as_a_rigid_motion_of_its_rest_layout():
+    """rigid_fit: a rigid instance's noisy slots are replaced by the best rigid motion of its rest
+    layout, which is nearer the truth than the slots; a non-rigid instance's slots stay as they are."""
+    from types import SimpleNamespace
+
+    from vgpl.sim.scene import lattice
+
+    cube = lattice((2, 2, 2), 0.1)
+    scene = SimpleNamespace(rest_offsets=np.concatenate([cube, np.zeros((3, 3))]).astype(np.float32),
+                            instance=np.array([0] * 8 + [1] * 3), rigid=np.array([True, False]))
+    model = VisualPrior(n_particles=11, n_instances=2, channels=[4, 4], pooled=[1, 1], hidden=8, rigid_fit=True).eval()
+    model.set_structure(scene)
+    turn = torch.tensor([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
+    truth = torch.cat([torch.as_tensor(cube, dtype=torch.float32) @ turn.T + torch.tensor([0.3, 0.5, -0.2]), torch.rand(3, 3)])
+    torch.manual_seed(1)
+    noisy = truth + 0.01 * torch.randn(11, 3)
+    model.forward = lambda frames: (noisy.expand(1, 4, 11, 3), torch.zeros(1, 4, 11, 2))  # a stand-in network
+    proposed, _ = model.propose(torch.zeros(1, 4, 8, 8, 3, dtype=torch.uint8))
+    cube_out = proposed[0, 0, :8]
+    assert torch.allclose(torch.cdist(cube_out, cube_out), torch.cdist(truth[:8], truth[:8]), atol=1e-5)  # exactly the rest shape
+    assert float(((cube_out - truth[:8]) ** 2).mean()) < 0.5 * float(((noisy[:8] - truth[:8]) ** 2).mean())
+    assert torch.equal(proposed[0, 0, 8:], noisy[8:])  # the free instance as proposed

@@ -52,6 +52,11 @@ class Camera:
         uv = cam[..., :2] / z * torch.stack([k[0, 0], k[1, 1]]) + torch.stack([k[0, 2], k[1, 2]])
         return torch.cat([uv, z], -1)
 
+    def unproject(self, uv: torch.Tensor, depth: torch.Tensor) -> torch.Tensor:
+        """Pixel coordinates [..., 2] at camera depths [...] to world points [..., 3] (``unproject``)."""
+        return unproject(uv, depth, torch.as_tensor(self.intrinsics, dtype=uv.dtype, device=uv.device),
+                         torch.as_tensor(self.world_to_camera, dtype=uv.dtype, device=uv.device))
+
     def rays(self) -> np.ndarray:
         """[H, W, 3] world-space unit ray directions through the pixel centres."""
         k_inv = np.linalg.inv(self.intrinsics)
@@ -77,3 +82,14 @@ class Camera:
     def from_json(cls, text: str) -> Camera:
         d = json.loads(text)
         return cls(tuple(d["eye"]), tuple(d["target"]), d["fov_y"], d["width"], d["height"])
+
+
+def unproject(uv: torch.Tensor, depth: torch.Tensor, intrinsics: torch.Tensor, world_to_camera: torch.Tensor) -> torch.Tensor:
+    """World points [..., 3] of pixels ``uv`` [..., 2] at camera depths ``depth`` [...] (z forward),
+    through K ``intrinsics`` [3, 3] and the extrinsic ``world_to_camera`` [4, 4]: the inverse of
+    :meth:`Camera.project`."""
+    x = (uv[..., 0] - intrinsics[0, 2]) / intrinsics[0, 0] * depth
+    y = (uv[..., 1] - intrinsics[1, 2]) / intrinsics[1, 1] * depth
+    cam = torch.stack([x, y, depth], -1)
+    rot, t = world_to_camera[:3, :3], world_to_camera[:3, 3]
+    return (cam - t) @ rot

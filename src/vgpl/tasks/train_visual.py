@@ -35,6 +35,8 @@ def train_visual(cfg: DictConfig) -> dict:
     dm.setup()
     model: VisualPrior = hydra.utils.instantiate(spec.net, _convert_="all", n_particles=scene.n_particles, n_instances=scene.n_instances, frames=spec.frames)
     model.set_stats(dm.stats)
+    model.set_camera(scene.camera)
+    model.set_structure(scene)
     trainer, last = fit(cfg, "visual", spec, model, dm)
     if not trainer.is_global_zero:  # under DDP rank 0 alone evaluates and writes
         return {"env": scene.name, "checkpoint": str(last)}
