@@ -204,3 +204,38 @@ def test_rigid_fit_proposes_each_rigid_instance_as_a_rigid_motion_of_its_rest_la
     assert torch.allclose(torch.cdist(cube_out, cube_out), torch.cdist(truth[:8], truth[:8]), atol=1e-5)  # exactly the rest shape
     assert float(((cube_out - truth[:8]) ** 2).mean()) < 0.5 * float(((noisy[:8] - truth[:8]) ** 2).mean())
     assert torch.equal(proposed[0, 0, 8:], noisy[8:])  # the free instance as proposed
+
+
+def test_rigid_pose_places_each_rigid_instances_rest_layout_at_its_attended_centroid():
+    """architecture=spatial rigid_pose=true: a rigid instance's particles are its rest layout, turned
+    by the instance slot's rotation and centred on the point its heatmap attends to; at the
+    identity rotation and uniform attention that is the image centre at the mean depth. The free
+    instance's particles keep their own slots."""
+    from types import SimpleNamespace
+
+    from vgpl.sim.envs import make_scene
+    from vgpl.sim.scene import lattice
+
+    camera = make_scene("rigid_fall").camera
+    cube = lattice((2, 2, 2), 0.1)
+    scene = SimpleNamespace(rest_offsets=np.concatenate([cube, np.zeros((3, 3))]).astype(np.float32),
+                            instance=np.array([0] * 8 + [1] * 3), rigid=np.array([True, False]))
+    torch.manual_seed(0)
+    model = VisualPrior(n_particles=11, n_instances=2, channels=[4, 8, 8], architecture="spatial", head_width=8, rigid_pose=True).eval()
+    model.pos_mean.copy_(torch.tensor([0.1, 0.3, 0.05]))
+    model.set_camera(camera)
+    model.set_structure(scene)
+    frames = torch.randint(0, 255, (2, 4, 120, 160, 3), dtype=torch.uint8)
+    with torch.no_grad():
+        for conv in (model.poses.heat, model.poses.depth):
+            conv.weight.zero_(), conv.bias.zero_()
+        model.poses.readout.weight.zero_()
+        positions, _ = model.propose(frames)
+    placed = positions[:, :, :8]
+    assert torch.allclose(placed - placed.mean(2, keepdim=True), torch.as_tensor(cube, dtype=torch.float32).expand_as(placed), atol=1e-5)
+    centre = camera.project(placed.mean(2))
+    assert torch.allclose(centre[..., :2], torch.tensor([80.0, 60.0]), atol=1e-3)
+    assert torch.allclose(centre[..., 2], camera.project(model.pos_mean[None])[0, 2], atol=1e-4)
+    assert not torch.allclose(positions[:, :, 8:], placed[:, :, :3])  # the rope-like instance: its own slots
+    with pytest.raises(ValueError, match="rigid_pose=true needs model.visual.net.architecture=spatial"):
+        VisualPrior(n_particles=11, n_instances=2, rigid_pose=True)

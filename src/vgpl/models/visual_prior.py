@@ -19,6 +19,7 @@ from torch import nn
 from torch.nn import functional as F
 
 from vgpl.models.step_learning_rate import AnnealedLearningRate
+from vgpl.nn.rigid import quaternion_to_matrix
 from vgpl.nn.slot_heatmaps import SlotHeatmaps
 from vgpl.sim.camera import Camera, unproject
 from vgpl.sim.shape_matching import shape_match
@@ -51,12 +52,15 @@ class VisualPrior(AnnealedLearningRate, L.LightningModule):
         head_width: int = 64,
         head_level: int = -2,
         rigid_fit: bool = False,
+        rigid_pose: bool = False,
     ) -> None:
         """channels: the conv blocks' widths; pooled, hidden: the paper architecture's pooled grid and
         head width; head_width: the spatial architecture's feature-pyramid width; head_level: the
         block whose map the slots attend over (-2: the second to last, merged with the last; -3 halves
         the cells' size at four times the heatmaps' cost); rigid_fit: ``propose`` replaces each rigid
-        instance's slots by the best rigid motion of its rest layout (``set_structure``); downsample:
+        instance's slots by the best rigid motion of its rest layout (``set_structure``); rigid_pose
+        (spatial): each rigid instance is a slot of its own per frame, whose attended centroid and
+        rotation (an identity-offset quaternion read from its features) place its rest layout;
         average-pool the frames by this factor first."""
         super().__init__()
         if architecture not in ("paper", "spatial"):
@@ -67,7 +71,9 @@ class VisualPrior(AnnealedLearningRate, L.LightningModule):
         self.save_hyperparameters()
         self.register_buffer("pos_mean", torch.zeros(3))
         self.register_buffer("pos_std", torch.ones(3))
-        if rigid_fit:
+        if rigid_pose and architecture != "spatial":
+            raise ValueError("model.visual.net.rigid_pose=true needs model.visual.net.architecture=spatial")
+        if rigid_fit or rigid_pose:
             self.register_buffer("rest_offsets", torch.zeros(n_particles, 3))
             self.register_buffer("instance", torch.zeros(n_particles, dtype=torch.long))
             self.register_buffer("rigid_particle", torch.zeros(n_particles, dtype=torch.bool))
@@ -81,6 +87,11 @@ class VisualPrior(AnnealedLearningRate, L.LightningModule):
             self.register_buffer("image_size", torch.tensor([120, 160]))
             self.trunk = nn.ModuleList(blocks).to(memory_format=torch.channels_last)
             self.slots = SlotHeatmaps(channels[head_level], channels[head_level + 1], head_width, frames * n_particles, n_instances)
+            if rigid_pose:
+                self.poses = SlotHeatmaps(channels[head_level], channels[head_level + 1], head_width, frames * n_instances, 4)
+                with torch.no_grad():  # start at the identity rotation
+                    self.poses.readout.weight.mul_(0.01)
+                    self.poses.readout.bias.copy_(torch.tensor([1.0, 0.0, 0.0, 0.0]))
             return
         # channels-last: the layout oneDNN's and cuDNN's fast convolutions use (this CPU: 1.42x a step in fp32, 1.23x
         # in bf16; benchmarks/results_visual.jsonl). Module.to keeps it; a checkpoint saved either way loads into it.
@@ -130,13 +141,20 @@ class VisualPrior(AnnealedLearningRate, L.LightningModule):
         level = self.hparams.head_level
         uv, depth, logits = self.slots(maps[level], maps[level + 1], size)
         mean_depth = (self.world_to_camera[2, :3] * self.pos_mean).sum() + self.world_to_camera[2, 3]
-        world = unproject(uv, mean_depth + self.pos_std.norm() * depth, self.intrinsics, self.world_to_camera)
-        return ((world - self.pos_mean) / self.pos_std).view(b, f, n, 3), logits.view(b, f, n, m)
+        scale = self.pos_std.norm()
+        world = unproject(uv, mean_depth + scale * depth, self.intrinsics, self.world_to_camera).view(b, f, n, 3)
+        if self.hparams.rigid_pose:
+            centre_uv, centre_depth, quaternion = self.poses(maps[level], maps[level + 1], size)
+            centre = unproject(centre_uv, mean_depth + scale * centre_depth, self.intrinsics, self.world_to_camera).view(b, f, m, 3)
+            rotation = quaternion_to_matrix(quaternion).view(b, f, m, 3, 3)
+            placed = centre[:, :, self.instance] + torch.einsum("bfnij,nj->bfni", rotation[:, :, self.instance], self.rest_offsets)
+            world = torch.where(self.rigid_particle[:, None], placed, world)
+        return ((world - self.pos_mean) / self.pos_std), logits.view(b, f, n, m)
 
     def set_structure(self, scene) -> None:
         """The scene's particle layout: each particle's instance, its instance's rigidness and its rest
         offset from the instance's centroid (saved with the checkpoint; used by ``rigid_fit``)."""
-        if self.hparams.rigid_fit:
+        if self.hparams.rigid_fit or self.hparams.rigid_pose:
             self.rest_offsets.copy_(torch.as_tensor(scene.rest_offsets, dtype=torch.float32))
             self.instance.copy_(torch.as_tensor(scene.instance))
             self.rigid_particle.copy_(torch.as_tensor(scene.rigid[scene.instance]))
