@@ -157,9 +157,15 @@ class Scene:
     def project(self, p: torch.Tensor, x: torch.Tensor, ctx: dict, pairs: dict, frame: float) -> torch.Tensor:
         raise NotImplementedError
 
-    def finalize(self, p: torch.Tensor, ctx: dict, frame: float) -> torch.Tensor:
-        """Once per substep after the constraint iterations (default: rigid shape matching)."""
+    def finalize(self, p: torch.Tensor, x: torch.Tensor, ctx: dict, frame: float) -> torch.Tensor:
+        """Once per substep after the constraint iterations, from the substep's start x (default: rigid
+        shape matching)."""
         return self.shape_match(p)
+
+    def stored(self, x: torch.Tensor) -> torch.Tensor:
+        """The positions [B, N, 3] a frame records of the state x [B, N, 3] (default: x itself; a
+        scene whose rigid particles end a step off a rigid motion stores them rigidly projected)."""
+        return x
 
     def post_velocity(self, v: torch.Tensor, p: torch.Tensor, ctx: dict, pairs: dict) -> torch.Tensor:
         return v
@@ -221,10 +227,10 @@ class Scene:
                 p = self.kinematics(x + v * dts, ctx, frame)
                 for _ in range(self.iterations):
                     p = self.project(p, x, ctx, pairs, frame)
-                p = self.finalize(p, ctx, frame)
+                p = self.finalize(p, x, ctx, frame)
                 v = self.post_velocity((p - x) / dts, p, ctx, pairs)
                 x = p
-            pos[:, t], vel[:, t] = x, v
+            pos[:, t], vel[:, t] = self.stored(x), v
         return Trajectories(pos, vel, params, actions)
 
 

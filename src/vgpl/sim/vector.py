@@ -21,6 +21,13 @@ def squared_norm(d: torch.Tensor) -> torch.Tensor:
     return (d * d) @ d.new_ones(d.shape[-1])
 
 
+def squared_norm_rowwise(d: torch.Tensor) -> torch.Tensor:
+    """[E, 3] -> [E] squared Euclidean length of each row from elementwise operations only, so a row's
+    value never depends on the rows around it (a matrix-vector product's can, by one rounding, as the
+    BLAS kernel splits the rows differently); slower than :func:`squared_norm`."""
+    return d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1] + d[:, 2] * d[:, 2]
+
+
 def squared_norm_weighted(v: torch.Tensor, matrices: torch.Tensor) -> torch.Tensor:
     """v [E, 3], matrices [E, 3, 3] -> [E] quadratic forms v^T A v."""
     return ((matrices @ v.unsqueeze(-1)).squeeze(-1) * v) @ v.new_ones(v.shape[-1])

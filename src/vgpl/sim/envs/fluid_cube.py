@@ -125,7 +125,7 @@ class FluidCube(Scene):
         p = project_particle_contacts(p, x, self._bodies, *pairs["contact"], distance=self.spacing)
         return project_planes(p, x, self._bodies, self.container_planes(ctx["actions"], frame))
 
-    def finalize(self, p, ctx, frame):
+    def finalize(self, p, x, ctx, frame):
         return push_rigid_out_of_planes(self.shape_match(p), self._bodies, self.container_planes(ctx["actions"], frame))
 
     def post_velocity(self, v, p, ctx, pairs):

@@ -185,5 +185,5 @@ class MassRope(Scene):
         rot = best_rotation(torch.einsum("bki,kj->bij", mass - centroid, rest))
         return torch.cat([centroid + torch.einsum("bij,kj->bki", rot, rest), p[:, self.n_mass :]], 1)
 
-    def finalize(self, p, ctx, frame):
+    def finalize(self, p, x, ctx, frame):
         return p  # the mass is shape-matched in every pass already

@@ -95,5 +95,8 @@ class RigidFall(Scene):
     def project(self, p, x, ctx, pairs, frame):
         return self.contacts.project(p, x, self._bodies, pairs["contact"], ctx["planes"], self.shape_match)
 
-    def finalize(self, p, ctx, frame):
-        return self.contacts.finalize(p, self._bodies, ctx["planes"], self.shape_match)
+    def finalize(self, p, x, ctx, frame):
+        return self.contacts.finalize(p, x, self._bodies, ctx["planes"], self.shape_match)
+
+    def stored(self, x: torch.Tensor) -> torch.Tensor:
+        return self.shape_match(x)
