@@ -26,12 +26,14 @@ from machine import describe  # noqa: E402
 REPO = Path(__file__).resolve().parents[1]
 
 
-ACCURACY_KEYS = ("n_test", "param_mae_pct", "param_mae_pct_std", "param_bias_pct", "midpoint_param_mae_pct")
+ACCURACY_KEYS = ("n_test", "param_mae_pct", "param_mae_pct_std", "param_bias_pct", "midpoint_param_mae_pct",
+                 "future_mse_x1e4@1", "future_mse_x1e4@5", "future_mse_x1e4@10", "future_mse_x1e4@20",
+                 "refine_mse_x1e4_before", "refine_mse_x1e4_after")
 
 
 def accuracy(run_dir: Path) -> dict:
-    """The run's parameter numbers: each evaluated ablation's test MAE, its std and bias, and the range
-    midpoint's MAE on the same videos (``evaluate/<ablation>/metrics.json``); the prior's oracle
+    """The run's numbers: each evaluated ablation's parameter MAE, its std and bias, the range midpoint's
+    MAE on the same videos, the future MSE and the refinement (``evaluate/<ablation>/metrics.json``); the prior's oracle
     (``identifiability/identifiability.json``)."""
     out = {"evaluate": {}}
     for metrics in sorted(run_dir.glob("evaluate/*/metrics.json")):

@@ -72,7 +72,7 @@ class ShareOfGravity(NormalisationBuffers, torch.nn.Module):
 
 @pytest.fixture(scope="module")
 def falling():
-    """RigidFall's first 8 frames: the stack falls freely (it lands near frame 15)."""
+    """RigidFall's first 10 frames: the stack falls, its bottom cube reaching the floor from frame 6-7."""
     scene, traj = simulate("rigid_fall", seeds=(0, 1, 2), n_steps=10)
     return scene, _rollouts(scene, traj)
 
@@ -93,7 +93,9 @@ def test_the_linearised_argmin_finds_the_gravity_a_biased_prior_prefers(falling)
     moves P by the truth's own magnitude (in physical units), clamped at the range's end."""
     scene, rollouts = falling
     response = param_response(ShareOfGravity(scene, 0.5), scene, rollouts, start=0, frames=8, n=3)
-    assert response.restart_error < 1e-6 and response.engine.shape == (3, 8 - 2, scene.n_particles, 3)
+    # frames store the cubes rigidly projected, the engine's state keeps its last floor pass: a restart
+    # from a recorded frame after the first floor contact is off by micrometres, not exact
+    assert response.restart_error < 2e-5 and response.engine.shape == (3, 8 - 2, scene.n_particles, 3)
     normaliser = ShareOfGravity(scene, 1.0)
     truth = normaliser.normalise_params(rollouts.params)[:, 0]
     wanted = normaliser.normalise_params(2 * rollouts.params)[:, 0] - truth  # exact for a linear prior
