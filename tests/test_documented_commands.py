@@ -33,7 +33,7 @@ from vgpl.tasks import TASKS
 REPO = Path(__file__).resolve().parents[1]
 DOCS = ["README.md", *(f"docs/{p.name}" for p in sorted((REPO / "docs").glob("*.md")))]
 BROKEN = (HydraException, OmegaConfBaseException, AssertionError)  # a bad override or group, an unresolvable value, an unknown task
-PLACEHOLDERS = {"<env>": "rigid_fall", "<preset>": "quick", "<partition>": "debug", "<date>/<time>": "2026-01-01/00-00-00"}
+PLACEHOLDERS = {"<env>": "rigid_fall", "<preset>": "quick", "<s>": "0", "<partition>": "debug", "<date>/<time>": "2026-01-01/00-00-00"}
 COMMAND = re.compile(r"python run\.py[^#&;|\n]*")  # up to a comment, &&, ; or a pipe (a redirect: strip_redirect)
 
 

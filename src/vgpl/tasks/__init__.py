@@ -27,6 +27,7 @@ TASKS: dict[str, str] = {
     "compare": "vgpl.tasks.compare:compare",
     "free_fall_gravity": "vgpl.tasks.free_fall:free_fall_gravity",
     "pipeline": "vgpl.tasks.pipeline:pipeline",
+    "results": "vgpl.tasks.results:results",
 }
 
 
