@@ -3,6 +3,7 @@ seconds and each training's steps run of those asked, with the machine described
 
     python benchmarks/main_job.py                 # one JSON line on stdout (about 9 minutes)
     python benchmarks/main_job.py --keep /tmp/mj  # keep its data, checkpoints and run folder
+    python benchmarks/main_job.py -- env=mass_rope seed=1 >> results/quick.jsonl   # a row of README's tables
 
 It runs `run.py` in a fresh root folder (data, checkpoints and outputs under it), so nothing
 generated or trained before is reused, then reads the run's ``pipeline.json`` and its parameter
@@ -61,7 +62,9 @@ def main() -> None:
     if proc.returncode != 0:
         sys.exit(f"main job failed ({' '.join(command)}):\n{proc.stderr[-3000:]}")
     summary = json.loads((run_dir / "pipeline.json").read_text())
-    print(json.dumps({"benchmark": "main_job", "wall_s": round(wall, 1), "overrides": args.overrides, **summary, **accuracy(run_dir), "machine": describe()}))
+    preset = next((o.split("=", 1)[1] for o in args.overrides if o.startswith("experiment=")), "quick")
+    print(json.dumps({"benchmark": "main_job", "preset": preset, "wall_s": round(wall, 1), "overrides": args.overrides, **summary,
+                      **accuracy(run_dir), "machine": describe()}))
     if not args.keep:
         shutil.rmtree(root)
 

@@ -167,6 +167,7 @@ def test_pooled_windows_give_the_same_numbers_from_the_videos_and_from_the_expor
     pooled = pool_windows(exported[0][:, :6], exported[2][:, :6], "mean")
     before = ((pooled - test.positions[:, :6]) ** 2).mean() * 1e4  # rigid_fall has no kinematic particles
     assert by_video.metrics["refine_mse_x1e4_before"] == pytest.approx(float(before), rel=1e-5)
+    assert by_video.metrics["refine_rms_mm_before"] == pytest.approx(float(((pooled - test.positions[:, :6]) ** 2).mean().sqrt() * 1e3), rel=1e-5)
     assert by_video.metrics["refine_mse_x1e4_before"] != pytest.approx(paper.metrics["refine_mse_x1e4_before"], rel=1e-3)
     with pytest.raises(ValueError, match="window_pool='mean' needs the windows' slots, the exported proposals have none"):
         evaluate_grounding(dyn, None, inf, scene, test, _ablation(), exported=exported[:2], window_pool="mean", **KWARGS)

@@ -142,6 +142,7 @@ def test_every_section_lists_the_envs_in_the_papers_order_whatever_order_the_swe
         records += [full, _with_videos(env, "no_params", [15.0, 26.0])]
     report = report_markdown(records)
     assert report.index("| mass_rope | 2.000") < report.index("| rigid_fall | 2.000") < report.index("| fluid_cube | 2.000")
+    assert "| rigid_fall | 2.000 (14.1 mm) | 1.000 (10.0 mm) |" in report  # RMS per coordinate: 10 sqrt(MSE x 1e4)
     assert report.index("| mass_rope | mass_rope_object") < report.index("| rigid_fall | rigid_fall_object") < report.index("| fluid_cube | fluid_cube_object")
     paired = report[report.index("## Is VGPL lower"):]
     assert paired.index("| mass_rope |") < paired.index("| rigid_fall |") < paired.index("| fluid_cube |")

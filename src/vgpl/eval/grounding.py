@@ -22,6 +22,7 @@ from vgpl.eval.metrics import (
     param_signed_error_pct,
     per_video_per_type,
     position_mse_x1e4,
+    rms_mm,
 )
 from vgpl.eval.rollout import future_mse, rollout
 from vgpl.eval.test_time_fit import TestTimeFit, refit_inferred
@@ -146,6 +147,8 @@ def evaluate_grounding(dynamics, visual, inference, scene, test: Rollouts, ablat
     metrics["refine_mse_x1e4_before"] = position_mse_x1e4(seen_proposals, truth_seen, movable)
     refined = out["positions"] if ablation.refinement else infer_in_chunks(inference, seen_proposals, logits[:, :observed], kinematic, chunk)["positions"]
     metrics["refine_mse_x1e4_after"] = position_mse_x1e4(refined, truth_seen, movable)
+    for when in ("before", "after"):  # the same error as people read it: RMS per coordinate, mm
+        metrics[f"refine_rms_mm_{when}"] = rms_mm(metrics[f"refine_mse_x1e4_{when}"])
     # motion: the frames' acceleration error against the true motion's size (P's signal is in the acceleration)
     metrics["accel_error_mm_before"] = mean_abs_acceleration_mm(seen_proposals - truth_seen, movable)
     metrics["accel_error_mm_after"] = mean_abs_acceleration_mm(refined - truth_seen, movable)

@@ -30,6 +30,11 @@ def position_mse_x1e4(pred: torch.Tensor, truth: torch.Tensor, mask: torch.Tenso
     return float(((pred - truth) ** 2).mean() * 1e4)
 
 
+def rms_mm(mse_x1e4: float) -> float:
+    """The RMS position error per coordinate in mm of a mean squared error given x 1e4 (m²)."""
+    return 10.0 * mse_x1e4**0.5
+
+
 def mean_abs_acceleration_mm(positions: torch.Tensor, mask: torch.Tensor | None = None) -> float:
     """Mean |x_(t+1) - 2 x_t + x_(t-1)| x 1e3: the per-frame acceleration in mm per frame squared,
     over rollouts, frames, particles (``mask`` [N] selects) and coordinates. positions [R, T, N, 3]

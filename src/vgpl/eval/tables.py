@@ -11,6 +11,7 @@ from typing import NamedTuple
 
 import torch
 
+from vgpl.eval.metrics import rms_mm
 from vgpl.eval.paired import paired_bootstrap, paired_values
 from vgpl.eval.pooled import pool_runs, variant
 from vgpl.eval.rollout import FUTURE
@@ -217,9 +218,10 @@ def report_markdown(records: list[dict], paired: dict | None = None) -> str:
     order = {env: k for k, env in enumerate(_envs(records))}  # the paper's env order, as in Tables 1 and 2
     extra = sorted((r for r in records if "refine_mse_x1e4_before" in r and _key(r) == ("vgpl", "full")), key=lambda r: order[r["env"]])
     if extra:
-        parts += ["", "## Refinement: position MSE x 1e4 of the observed frames", markdown(
+        parts += ["", "## Refinement: position MSE x 1e4 of the observed frames (RMS per coordinate, mm)", markdown(
             ["env", "before (proposals)", "after (refined)"],
-            [[r["env"], f"{r['refine_mse_x1e4_before']:.3f}", f"{r['refine_mse_x1e4_after']:.3f}"] for r in extra])]
+            [[r["env"], *(f"{r[f'refine_mse_x1e4_{w}']:.3f} ({rms_mm(r[f'refine_mse_x1e4_{w}']):.1f} mm)" for w in ("before", "after"))]
+             for r in extra])]
         rig = [(r["env"], k.split("/", 1)[1], v) for r in extra for k, v in r.items() if k.startswith("rigidness_prob@")]
         if rig:
             parts += ["", "## Rigidness: probability of the correct label at the trained T", markdown(
