@@ -4,8 +4,8 @@
     python benchmarks/flex_fidelity.py --demo <path> --fit      # also search the fitted settings
     python benchmarks/flex_fidelity.py --env mass_rope --demo <path> [--fit]
 
-For the env's default world (conf/env/<env>.yaml), and on RigidFall also the same world with hard
-rigid-body contacts (vgpl.sim.particle_contacts.BodyContacts), on the calibration rollouts and on
+For the env's default world (conf/env/<env>.yaml), and on RigidFall also the same world without
+its floor pass (``contacts.floor_pass``) and with hard rigid-body contacts (vgpl.sim.particle_contacts.BodyContacts), on the calibration rollouts and on
 the held-out ones: position MSE x 1e4 (per coordinate) at frames 5, 10, 20, 50, 100 and the last;
 the chaos floor (the same engine from a start with 1 mm of jitter); and the outcome statistics
 beside FleX's (RigidFall: the cubes' landing; MassRope: the rope's stretch, the mass's turn and
@@ -111,7 +111,9 @@ def main() -> None:
     flex = {name: outcomes(scene, [rollouts[k] for k in ids], np.stack([rollouts[k].positions for k in ids])) for name, ids in splits.items()}
     worlds = {"default": settings(scene)}
     if args.env == "rigid_fall":
-        worlds = {"default (particle contacts)": settings(scene), "hard contacts (BodyContacts)": {"type": "BodyContacts", **dataclasses.asdict(BodyContacts())}}
+        worlds = {"default (particle contacts)": settings(scene),
+                  "no floor pass (contacts.floor_pass=false)": {**settings(scene), "floor_pass": False},
+                  "hard contacts (BodyContacts)": {"type": "BodyContacts", **dataclasses.asdict(BodyContacts())}}
     default = {k: v for k, v in settings(scene).items() if k != "type"}
     if args.fit:
         cal = [rollouts[k] for k in args.calibration]
@@ -122,7 +124,7 @@ def main() -> None:
         if setting["type"] == "BodyContacts":
             scene.contacts = BodyContacts()
         else:
-            apply(scene, {k: setting[k] for k in GRID[args.env]})
+            apply(scene, {k: setting[k] for k in GRID[args.env]} | ({"floor_pass": setting.get("floor_pass", True)} if args.env == "rigid_fall" else {}))
         for split, ids in splits.items():
             subset = [rollouts[k] for k in ids]
             row = {"benchmark": "flex_fidelity", "env": args.env, "world": world, "settings": setting,

@@ -8,7 +8,7 @@ rows. Two kinds of row, one JSON object per line:
 
 - a run: the line ``benchmarks/main_job.py`` prints (``env``, ``overrides`` with ``seed=<s>``,
   ``wall_s``, each ablation's metrics under ``evaluate``, ``machine`` with the code's commit), with
-  ``preset`` added;
+  ``preset`` added, and optionally a ``note`` the row's footnote repeats;
 - the paper: ``{"source": "paper", "env", "method": "vgpl" | "densephysnet", "param_mae_pct",
   "param_mae_pct_std", "future_mse_x1e4": {"1": ..}, "refine_mse_x1e4": [before, after]}``.
 """
@@ -113,7 +113,8 @@ def env_table(rows: list[dict], env: str) -> str:
     for k, (_, runs) in enumerate(sorted(groups.items(), key=lambda item: item[0]), 1):
         key = f"{env[0]}{k}"
         table.append(_runs_row(runs, key))
-        notes.append(f"[{key}] {len(runs)} runs from nothing ({runs[0]['preset']} preset): {_machine(runs)}.")
+        extra = "".join(f" {n}." for n in sorted({r["note"] for r in runs if r.get("note")}))
+        notes.append(f"[{key}] {len(runs)} runs from nothing ({runs[0]['preset']} preset): {_machine(runs)}.{extra}")
     for method, label in (("densephysnet", "DensePhysNet"), ("vgpl", "VGPL")):
         for row in rows:
             if row["env"] == env and row.get("source") == "paper" and row["method"] == method:

@@ -5,11 +5,11 @@ the body to the best rigid fit of its pushed particles. A contact at the bottom 
 thereby shared with the rest of the cube, so a falling body sinks into the floor and into other
 bodies for a few frames and springs back: FleX's soft contacts. Particle-particle corrections are
 averaged over each particle's active contacts (Jacobi, as FleX's local relaxation) and scaled by
-``relaxation``; plane corrections are scaled by ``plane_relaxation``. Each substep ends with one more
-plane pass that is not shape matched: the particles that touch the floor keep its friction, so a
-body that rocks turns about its stuck edge instead of sliding on it, and its particles end the
-substep slightly off a rigid motion, as FleX's do (the scene stores them rigidly projected, as the
-authors stored theirs).
+``relaxation``; plane corrections are scaled by ``plane_relaxation``. With ``floor_pass`` each
+substep ends with one more plane pass that is not shape matched: the particles that touch the floor
+keep its friction, so a body that rocks turns about its stuck edge instead of sliding on it, and its
+particles end the substep slightly off a rigid motion, as FleX's do (the scene stores them rigidly
+projected, as the authors stored theirs).
 
 The alternative, :class:`BodyContacts`, resolves every contact on the whole body at once
 (vgpl.sim.contacts): hard contacts, no sinking.
@@ -47,7 +47,8 @@ class ParticleContacts:
     distance: particle-particle contact distance between different instances (m);
     plane_distance: how far particle centres stay from a plane (FleX's collision distance, m);
     friction, plane_friction: Coulomb coefficients against particles and planes;
-    relaxation, plane_relaxation: scale of the averaged particle and of the plane corrections.
+    relaxation, plane_relaxation: scale of the averaged particle and of the plane corrections;
+    floor_pass: end each substep on a plane pass that is not shape matched (see the module).
     The defaults are FleX's RigidFall settings, with friction and the relaxations fitted to the
     authors' rollouts (benchmarks/flex_fidelity.py). Every particle has the same mass, as in
     RigidFall: a pair's correction is split evenly between its two particles.
@@ -59,6 +60,7 @@ class ParticleContacts:
     plane_friction: float = 1.0
     relaxation: float = 1.25
     plane_relaxation: float = 0.5
+    floor_pass: bool = True
 
     @property
     def search_radius(self) -> float:
@@ -103,7 +105,9 @@ class ParticleContacts:
         return delta
 
     def finalize(self, p, x_prev, bodies: Bodies, planes, shape_match: ShapeMatch) -> torch.Tensor:
-        """The substep's last plane pass, not shape matched (see the module's docstring)."""
+        """With ``floor_pass``, the substep's last plane pass, not shape matched; else p as it is."""
+        if not self.floor_pass:
+            return p
         delta = self.plane_corrections(p, (p - x_prev).reshape(-1, 3), planes, friction_scale=1.0)
         return p + delta.reshape(p.shape)
 
