@@ -39,7 +39,7 @@ def test_two_seeds_of_a_variant_give_their_mean_and_each_run():
     assert row["VGPL T+20"] == "70.000" and row["mean difference (ablation - VGPL) [95% bootstrap]"].startswith("+20.000 [")
     text = report_markdown(records)
     assert "## Runs pooled" in text and "| rigid_fall | VGPL | 2 | 7.0, 8.0 | 75.0, 65.0 |" in text
-    assert text.count("| rigid_fall | cube |") == 1 and "| rigid_fall | 9.000 | 7.500 |" in text  # one row for the pooled runs, not one each
+    assert text.count("| rigid_fall | cube |") == 1 and "| rigid_fall | 9.000 (30.0 mm) | 7.500 (27.4 mm) |" in text  # one row for the pooled runs, not one each
     assert "## Runs pooled" not in report_markdown([seed0, other])
 
 
