@@ -5,7 +5,8 @@
     python benchmarks/flex_fidelity.py --env mass_rope --demo <path> [--fit]
 
 For the env's default world (conf/env/<env>.yaml), and on RigidFall also the same world without
-its floor pass (``contacts.floor_pass``) and with hard rigid-body contacts (vgpl.sim.particle_contacts.BodyContacts), on the calibration rollouts and on
+its floor pass (``contacts.floor_pass``) and with hard rigid-body contacts
+(vgpl.sim.particle_contacts.BodyContacts), on the calibration rollouts and on
 the held-out ones: position MSE x 1e4 (per coordinate) at frames 5, 10, 20, 50, 100 and the last;
 the chaos floor (the same engine from a start with 1 mm of jitter); and the outcome statistics
 beside FleX's (RigidFall: the cubes' landing; MassRope: the rope's stretch, the mass's turn and
@@ -124,7 +125,7 @@ def main() -> None:
         if setting["type"] == "BodyContacts":
             scene.contacts = BodyContacts()
         else:
-            apply(scene, {k: setting[k] for k in GRID[args.env]} | ({"floor_pass": setting.get("floor_pass", True)} if args.env == "rigid_fall" else {}))
+            apply(scene, {k: v for k, v in setting.items() if k not in ("type", "score")})
         for split, ids in splits.items():
             subset = [rollouts[k] for k in ids]
             row = {"benchmark": "flex_fidelity", "env": args.env, "world": world, "settings": setting,

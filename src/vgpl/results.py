@@ -58,10 +58,10 @@ def _command(row: dict) -> str:
     return " ".join(["python run.py", *preset, *rest, "seed=<s>"])
 
 
-def _mean_sd(values: list[float], unit: str = "") -> str:
+def _mean_sd(values: list[float], unit: str = "", digits: int = 1) -> str:
     if len(values) == 1:
-        return f"{values[0]:.1f}{unit}"
-    return f"{statistics.mean(values):.1f} ± {statistics.stdev(values):.1f}{unit}"
+        return f"{values[0]:.{digits}f}{unit}"
+    return f"{statistics.mean(values):.{digits}f} ± {statistics.stdev(values):.{digits}f}{unit}"
 
 
 def _three(value: float) -> str:
@@ -76,7 +76,6 @@ def _runs_row(runs: list[dict], key: str) -> list[str]:
     mae = [m["param_mae_pct"] for m in full]
     midpoint = statistics.mean(m["midpoint_param_mae_pct"] for m in full)
     ratio = [m["param_mae_pct"] / m["midpoint_param_mae_pct"] for m in full]
-    ratio_cell = f"{statistics.mean(ratio):.2f}" + (f" ± {statistics.stdev(ratio):.2f}" if len(ratio) > 1 else "")
     no_rigid = [r["evaluate"]["no_rigidness"]["param_mae_pct"] for r in runs if "no_rigidness" in r["evaluate"]]
     future = refine = ""
     if all(f"future_mse_x1e4@{k}" in m for m in full for k in HORIZONS):
@@ -84,7 +83,7 @@ def _runs_row(runs: list[dict], key: str) -> list[str]:
     if all("refine_mse_x1e4_before" in m for m in full):
         refine = " -> ".join(_three(statistics.mean(m[f"refine_mse_x1e4_{w}"] for m in full)) for w in ("before", "after"))
     cells = [f"`{_command(runs[0])}`, s = {', '.join(_seed(r) for r in runs)} [{key}]", _mean_sd(mae, "%"),
-             ", ".join(f"{v:.1f}" for v in mae), f"{midpoint:.1f}% ({ratio_cell})",
+             ", ".join(f"{v:.1f}" for v in mae), f"{midpoint:.1f}% ({_mean_sd(ratio, digits=2)})",
              _mean_sd(no_rigid, "%") if len(no_rigid) == len(runs) else "", future, refine]
     return cells
 

@@ -111,6 +111,10 @@ class ParticleContacts:
         delta = self.plane_corrections(p, (p - x_prev).reshape(-1, 3), planes, friction_scale=1.0)
         return p + delta.reshape(p.shape)
 
+    def stored(self, x, shape_match: ShapeMatch) -> torch.Tensor:
+        """The positions a frame records: rigidly projected after a floor pass, else x itself."""
+        return shape_match(x) if self.floor_pass else x
+
 
 @dataclass
 class BodyContacts:
@@ -133,3 +137,6 @@ class BodyContacts:
 
     def finalize(self, p, x_prev, bodies: Bodies, planes, shape_match: ShapeMatch) -> torch.Tensor:
         return push_rigid_out_of_planes(shape_match(p), bodies, planes)
+
+    def stored(self, x, shape_match: ShapeMatch) -> torch.Tensor:
+        return x  # rigid after every substep already
