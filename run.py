@@ -16,10 +16,12 @@ log = logging.getLogger("vgpl")
 @hydra.main(version_base="1.3", config_path="conf", config_name="config")
 def main(cfg: DictConfig) -> None:
     from vgpl.tasks import run_task
-    from vgpl.tasks.summary import terminal_summary
+    from vgpl.tasks.summary import closing_tables, terminal_summary
 
     result = run_task(cfg)
-    log.info("result (lists of more than 8 values counted; the files keep them): %s", json.dumps(terminal_summary(result), default=str, indent=1))
+    log.info("result (lists of more than 8 values and per-video maps counted; the files keep them): %s", json.dumps(terminal_summary(result), default=str, indent=1))
+    if isinstance(result, dict) and result.get("report"):  # the tables and where the rest is, as the last screen
+        print(closing_tables(result["report"]), flush=True)
 
 
 if __name__ == "__main__":

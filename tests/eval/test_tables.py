@@ -7,7 +7,8 @@ import torch
 
 from vgpl.eval.metrics import midpoint_error_pct
 from vgpl.eval.paired import paired_bootstrap, sign_test_p
-from vgpl.eval.tables import MIDPOINT_ROW, PER_VIDEO, csv_text, paired_rows, paired_steps, param_rows, read_params_csv, report_markdown, table1_rows
+from vgpl.eval.tables import (MIDPOINT_ROW, PER_VIDEO, csv_text, paired_by_horizon, paired_rows, paired_steps, paired_tables, param_rows, read_params_csv,
+                              report_markdown, table1_rows)
 
 
 def _record(env: str, ablation: str, mae: float, midpoint: float | None = None) -> dict:
@@ -127,8 +128,23 @@ def test_paired_table_says_whether_vgpl_is_lower_on_the_same_videos():
     header, rows = paired_rows(tail, 20)
     assert dict(zip(header, rows[0]))["VGPL is"] == "not distinguishable in the mean; lower on most videos"
     assert dict(zip(header, rows[0]))["videos where VGPL is lower (sign test p)"] == "95% (p < 1e-4)"  # 2 * 21 / 2^20 = 4.0e-5
-    assert "## Is VGPL lower at T+20?" in report_markdown(records)
+    report = report_markdown(records)  # one table, ablation by horizon: the verdict, the mean difference, the share of videos
+    assert report.count("## Is VGPL lower") == 1
+    assert "| mass_rope | VGPL w/o refinement | 4 | lower: +5.250 [" in report and "]; 100% (p 0.12) |" in report
+    assert "| mass_rope | VGPL w/o rigidness (Q = 0) | 2 | higher: " in report
     assert "Is VGPL lower" not in report_markdown([_record("mass_rope", "full", 3.0)])  # older records: no section
+
+
+def test_the_paired_table_folds_the_horizons_into_columns():
+    """Each (env, ablation) is one row and each T+k one column, whatever horizons the records carry."""
+    records = [_with_videos("rigid_fall", "full", [10.0, 20.0, 30.0]), _with_videos("rigid_fall", "no_params", [11.0, 21.0, 31.0])]
+    for r, extra in zip(records, ([1.0, 2.0, 3.0], [0.5, 1.0, 1.5])):  # at T+1 the ablation is lower on every video
+        r[PER_VIDEO.format(1)] = {str(i): v for i, v in zip(range(900, 903), extra)}
+    header, rows = paired_by_horizon(paired_tables(records))
+    assert header == ["env", "ablation", "videos", "T+1", "T+20"]
+    assert len(rows) == 1 and rows[0][:3] == ["rigid_fall", "VGPL w/o parameter estimation", "3"]
+    assert rows[0][3].startswith("higher: -1.000 [") and rows[0][3].endswith("; 0% (p 0.25)")
+    assert rows[0][4].startswith("lower: +1.000 [") and rows[0][4].endswith("; 100% (p 0.25)")
 
 
 def test_every_section_lists_the_envs_in_the_papers_order_whatever_order_the_sweep_wrote_them():

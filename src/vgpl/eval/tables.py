@@ -139,6 +139,29 @@ def paired_tables(records: list[dict]) -> dict[int, tuple[list[str], list[list[s
     return {step: table for step, table in tables.items() if table[1]}
 
 
+PAIRED_HEADING = ("## Is VGPL lower than each ablation? The same test videos, paired: the mean difference (ablation - VGPL) "
+                  "[95% bootstrap], then on how many videos VGPL is lower (sign test p)")
+
+
+def paired_by_horizon(paired: dict[int, tuple[list[str], list[list[str]]]]) -> tuple[list[str], list[list[str]]]:
+    """The per-horizon tables of ``paired_tables`` folded into one, ablation by horizon: a row per
+    (env, ablation), a column per T+k whose cell is the verdict, the mean difference with its
+    interval and the share of videos where VGPL is lower. The per-horizon CSVs keep the rest."""
+    steps = sorted(paired)
+    cells: dict[tuple[str, str], dict[int, str]] = {}
+    videos: dict[tuple[str, str], str] = {}
+    for step in steps:
+        header, rows = paired[step]
+        col = {name: header.index(name) for name in header}
+        for row in rows:
+            key = (row[0], row[1])
+            videos.setdefault(key, row[col["videos"]])
+            diff, share = row[col["mean difference (ablation - VGPL) [95% bootstrap]"]], row[col["videos where VGPL is lower (sign test p)"]]
+            cells.setdefault(key, {})[step] = f"{row[col['VGPL is']]}: {diff}; {share}"
+    return (["env", "ablation", "videos", *(f"T+{k}" for k in steps)],
+            [[env, name, videos[(env, name)], *(cells[(env, name)].get(k, "") for k in steps)] for env, name in cells])
+
+
 def markdown(header: list[str], rows: list[list[str]]) -> str:
     lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
     lines += ["| " + " | ".join(r) + " |" for r in rows]
@@ -210,8 +233,8 @@ def csv_text(header: list[str], rows: list[list[str]]) -> str:
 
 
 def report_markdown(records: list[dict], paired: dict | None = None) -> str:
-    """Table 1, Table 2, refinement, rigidness, the pooled runs and the paired tables
-    (``paired_tables(records)`` unless given) as Markdown."""
+    """Table 1, Table 2, refinement, rigidness, the pooled runs and the paired table, ablation by
+    horizon (``paired_by_horizon`` of ``paired_tables(records)`` unless given), as Markdown."""
     records = pool_runs(records)
     parts = ["## Table 1: parameter estimation, MAE as % of the range (std)", markdown(*table1_rows(records)),
              "", "## Table 2: future prediction, MSE x 1e4 after T+k steps", markdown(*table2_rows(records))]
@@ -228,10 +251,11 @@ def report_markdown(records: list[dict], paired: dict | None = None) -> str:
                 ["env", "object type", "P(correct)"], [[e, t, f"{v:.3f}"] for e, t, v in rig])]
     pooled = [r for r in records if r.get("runs", 1) > 1]
     if pooled:
-        parts += ["", "## Runs pooled: the tables above give their mean, the paired tables each video's mean over runs",
+        parts += ["", "## Runs pooled: the tables above give their mean, the paired table each video's mean over runs",
                   markdown(*runs_rows(pooled))]
-    for step, table in (paired_tables(records) if paired is None else paired).items():
-        parts += ["", f"## Is VGPL lower at T+{step}? The same test videos, paired", markdown(*table)]
+    paired = paired_tables(records) if paired is None else paired
+    if paired:
+        parts += ["", PAIRED_HEADING, markdown(*paired_by_horizon(paired))]
     return "\n".join(parts) + "\n"
 
 
