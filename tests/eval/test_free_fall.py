@@ -21,7 +21,8 @@ def falls(gravity: torch.Tensor, frames: int = 10, bodies: int = 3) -> torch.Ten
 def test_the_fit_recovers_gravity_and_averages_out_per_body_offsets():
     gravity = torch.tensor([-5.0, -9.81, -15.0], dtype=torch.float64)
     heights = falls(gravity)
-    profile = free_fall_profile(heights, gravity)
+    profile, free = free_fall_profile(heights, gravity)
+    assert bool(free.all())
     assert profile[0] == 0 and profile[9] == pytest.approx(DT * 9 * DT / 4 + (9 * DT) ** 2 / 2)
     torch.testing.assert_close(fit_gravity(heights, profile), gravity)
     shifted = heights + torch.tensor([0.01, -0.02, 0.03], dtype=torch.float64)  # a constant offset per body: no effect
@@ -34,11 +35,17 @@ def test_the_fit_recovers_gravity_and_averages_out_per_body_offsets():
     torch.testing.assert_close(fit_gravity(bumped, profile), expected)
 
 
-def test_a_body_that_lands_is_refused_by_video_body_and_frame():
-    gravity = torch.tensor([-9.81, -12.0], dtype=torch.float64)
+def test_a_body_that_lands_or_is_pushed_is_left_out_and_a_video_without_a_free_body_refused():
+    gravity = torch.tensor([-9.81, -12.0, -6.0], dtype=torch.float64)
     heights = falls(gravity)
     heights[1, 7:, 2] = heights[1, 6, 2]  # video 1's third body stops at frame 6
-    with pytest.raises(ValueError, match="not a free fall from rest over the first 10 frames: video 1, body 2 is .* mm off .* at frame 9"):
+    heights[2, 1:, 0] += 0.002 * torch.arange(1, 10, dtype=torch.float64)  # video 2's first body pushed upwards from the start
+    profile, free = free_fall_profile(heights, gravity)
+    assert free.tolist() == [[True] * 3, [True, True, False], [False, True, True]]
+    torch.testing.assert_close(fit_gravity(heights, profile, free), gravity)  # the free bodies give it exactly
+    assert abs(float(fit_gravity(heights, profile)[2]) + 6.0) > 0.1  # with the pushed body in, off
+    heights[1, 7:, :2] = heights[1, 6, :2]  # every body of video 1 lands
+    with pytest.raises(ValueError, match="first 10 frames: no body of video 1 is within 0.1 mm of the common profile .*observe fewer frames"):
         free_fall_profile(heights, gravity)
 
 
@@ -66,7 +73,7 @@ def test_a_split_scales_the_proposals_error_in_heights_as_in_positions_and_calib
     split = FreeFallSplit.of(SimpleNamespace(positions=truth, instance=instance, params=gravity[:, None]),
                              SimpleNamespace(positions=noisy), 10)
     assert split.position_mse == pytest.approx(float((noisy - truth).pow(2).mean()))
-    profile = free_fall_profile(heights, gravity)
+    profile, _ = free_fall_profile(heights, gravity)
     for scale in (1.0, 0.5):
         torch.testing.assert_close(split.fit(scale), fit_gravity(body_heights(truth + scale * (noisy - truth), instance), profile))
     torch.testing.assert_close(split.fit(0.0), gravity)

@@ -45,7 +45,7 @@ def free_fall_gravity(cfg: DictConfig) -> dict:
                      "calibrated_gravity_mae_pct": float(calibrated.abs().mean()), "calibrated_gravity_mae_pct_std": float(calibrated.abs().std()),
                      "calibration": [a, b]})
     result = {"env": env, "proposals": str(Path(cfg.data.root) / env), "n_train": len(train.gravity), "n_test": len(test.gravity),
-              "frames": frames, "profile": [float(s) for s in test.profile],
+              "frames": frames, "profile": [float(s) for s in test.profile], "free_bodies": int(test.free.sum()), "bodies": test.free.numel(),
               "midpoint_gravity_mae_pct": float(pct(torch.full_like(test.gravity, (low + high) / 2)).abs().mean()), "fits": rows}
     out = Path(cfg.paths.output_dir)
     out.mkdir(parents=True, exist_ok=True)
@@ -54,7 +54,8 @@ def free_fall_gravity(cfg: DictConfig) -> dict:
                      [[f"{r['error_scale']:g}", f"{r['proposal_mse_x1e4']:.2f}", f"{r['gravity_mae_pct']:.1f} ({r['gravity_bias_pct']:+.1f})",
                        f"{r['calibrated_gravity_mae_pct']:.1f} ({r['calibrated_gravity_mae_pct_std']:.1f})"] for r in rows])
     text = (f"# Gravity from a free-fall fit to frames 0-{frames - 1}: {len(test.gravity)} test videos, calibrated on "
-            f"{len(train.gravity)} training videos\n\n{table}\n\nThe range midpoint scores {result['midpoint_gravity_mae_pct']:.1f}%.\n")
+            f"{len(train.gravity)} training videos\n\n{table}\n\nThe range midpoint scores {result['midpoint_gravity_mae_pct']:.1f}%. "
+            f"{result['free_bodies']} of the test videos' {result['bodies']} bodies fall freely from rest over these frames; the fit reads those.\n")
     (out / "free_fall_gravity.md").write_text(text)
     log.info("%s", text)
     return result
