@@ -7,8 +7,19 @@ import torch
 
 from vgpl.eval.metrics import midpoint_error_pct
 from vgpl.eval.paired import paired_bootstrap, sign_test_p
-from vgpl.eval.tables import (MIDPOINT_ROW, PER_VIDEO, csv_text, paired_by_horizon, paired_rows, paired_steps, paired_tables, param_rows, read_params_csv,
-                              report_markdown, table1_rows)
+from vgpl.eval.tables import (
+    MIDPOINT_ROW,
+    PER_VIDEO,
+    csv_text,
+    paired_by_horizon,
+    paired_rows,
+    paired_steps,
+    paired_tables,
+    param_rows,
+    read_params_csv,
+    report_markdown,
+    table1_rows,
+)
 
 
 def _record(env: str, ablation: str, mae: float, midpoint: float | None = None) -> dict:
