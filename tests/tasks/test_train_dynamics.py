@@ -198,7 +198,8 @@ def test_task_start_frame_moves_every_window_and_a_bad_one_names_the_option(trai
     test, scene = load_split(tmp / "data", "rigid_fall", "test"), scene_of(train_cfg)
     frames, n = slice(10, 25), min(2, len(test.params))
     direct = rigidness_sweep(model, test.positions[:n, frames], ground_truth_grouping(test).expand(n, -1, -1), test.rigid.float().expand(n, -1),
-                             test.params[:n], scene.planes_at(test.actions[:n, frames]), torch.as_tensor(scene.kinematic), 11, scene.instance_types)
+                             test.params[:n], scene.planes_at(test.actions[:n, frames]), torch.as_tensor(scene.kinematic), 15 - model.hparams.history,
+                             scene.instance_types)
     assert at_10["rollout_l1_over_rigidness/cube"] == pytest.approx(direct["cube"]["l1"].tolist(), abs=1e-4)
     with pytest.raises(ValueError, match=r"task.start_frame=30: expected null \(the prior's env.start_frame, 0\) or a frame in 0..29"):
         evaluate_dynamics(config(tmp, "task=evaluate_dynamics", *base, "task.start_frame=30"))
@@ -260,9 +261,10 @@ def test_reloaded_checkpoint_predicts_bit_for_bit(trained):
     a, _ = load_dynamics(result["checkpoint"])
     b, _ = load_dynamics(result["checkpoint"])
     torch.manual_seed(0)
-    hist = torch.rand(1, 4, 192, 3)
+    h = a.hparams.history
+    hist = torch.rand(1, h, 192, 3)
     g = torch.nn.functional.one_hot(torch.arange(192) // 64, 3).float()[None]
-    args = (hist, g, torch.ones(1, 3), torch.tensor([[-9.0]]), torch.zeros(1, 5, 1, 4), torch.zeros(192, dtype=torch.bool))  # planes: history + the predicted frame
+    args = (hist, g, torch.ones(1, 3), torch.tensor([[-9.0]]), torch.zeros(1, h + 1, 1, 4), torch.zeros(192, dtype=torch.bool))  # planes: history + the predicted frame
     with torch.no_grad():
         assert torch.equal(a.eval()(*args), b.eval()(*args))
     assert torch.equal(a.disp_std, b.disp_std) and float(a.disp_std.abs().sum()) > 0  # statistics travel with it
