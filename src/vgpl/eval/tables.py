@@ -98,6 +98,9 @@ def _p_value(p: float) -> str:
     return f"{p:.2g}" if p >= 1e-4 else "< 1e-4"
 
 
+MEAN_DIFFERENCE, LOWER_SHARE, VERDICT = "mean difference (ablation - VGPL) [95% bootstrap]", "videos where VGPL is lower (sign test p)", "VGPL is"
+
+
 def paired_rows(records: list[dict], step: int) -> tuple[list[str], list[list[str]]]:
     """Header and rows: per env, each ablation against VGPL at T+``step`` on the videos both
     evaluated (records with per-video errors, ``PER_VIDEO``): the means, the mean difference with
@@ -121,8 +124,7 @@ def paired_rows(records: list[dict], step: int) -> tuple[list[str], list[list[st
             rows.append([env, ROWS[name], str(len(ids)), _mse(a.mean()), _mse(b.mean()),
                          f"{_mse(s['mean_diff'], '+')} [{_mse(s['low'], '+')}, {_mse(s['high'], '+')}]",
                          f"{100 * s['reference_lower_share']:.0f}% (p {_p_value(s['sign_p'])})", f"{_mse(a.median())} / {_mse(b.median())}", verdict])
-    header = ["env", "ablation", "videos", f"VGPL T+{step}", f"ablation T+{step}", "mean difference (ablation - VGPL) [95% bootstrap]",
-              "videos where VGPL is lower (sign test p)", "medians (VGPL / ablation)", "VGPL is"]
+    header = ["env", "ablation", "videos", f"VGPL T+{step}", f"ablation T+{step}", MEAN_DIFFERENCE, LOWER_SHARE, "medians (VGPL / ablation)", VERDICT]
     return header, rows
 
 
@@ -156,8 +158,7 @@ def paired_by_horizon(paired: dict[int, tuple[list[str], list[list[str]]]]) -> t
         for row in rows:
             key = (row[0], row[1])
             videos.setdefault(key, row[col["videos"]])
-            diff, share = row[col["mean difference (ablation - VGPL) [95% bootstrap]"]], row[col["videos where VGPL is lower (sign test p)"]]
-            cells.setdefault(key, {})[step] = f"{row[col['VGPL is']]}: {diff}; {share}"
+            cells.setdefault(key, {})[step] = f"{row[col[VERDICT]]}: {row[col[MEAN_DIFFERENCE]]}; {row[col[LOWER_SHARE]]}"
     return (["env", "ablation", "videos", *(f"T+{k}" for k in steps)],
             [[env, name, videos[(env, name)], *(cells[(env, name)].get(k, "") for k in steps)] for env, name in cells])
 
