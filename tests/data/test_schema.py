@@ -135,7 +135,7 @@ def test_a_stray_copy_of_a_shard_is_refused_naming_both_files(tmp_path):
 def test_a_failed_write_leaves_no_temporary_file_and_writers_never_share_one(tmp_path):
     """Each write goes through a temporary file of its own (pid and a random part), removed when
     the write fails after it was made: a full disk at the rename leaves nothing behind."""
-    from vgpl.data.shard import temporary_path
+    from vgpl.atomic_write import temporary_path
 
     scene = make_scene("mass_rope", n_steps=4)
     plan = plan_shards(2, 1.0, 2)[0]

@@ -19,6 +19,7 @@ from typing import TypeVar
 import h5py
 from filelock import FileLock
 
+from vgpl.atomic_write import atomic_path
 from vgpl.data.schema import DatasetError
 
 MANIFEST = "dataset.json"
@@ -51,9 +52,8 @@ class DatasetClaim:
             self._check(required=False)
             result = check_existing()
             if not self.manifest.exists():
-                tmp = self.manifest.with_name(MANIFEST + ".tmp")
-                tmp.write_text(json.dumps({"config_hash": self.config_hash, **self.description}, indent=1, default=str))
-                os.replace(tmp, self.manifest)
+                with atomic_path(self.manifest) as tmp:
+                    tmp.write_text(json.dumps({"config_hash": self.config_hash, **self.description}, indent=1, default=str))
         return result
 
     def place(self, tmp: Path, path: Path) -> None:

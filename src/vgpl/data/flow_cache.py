@@ -11,7 +11,6 @@ pairs it holds; a cache that does not match what is asked for is rebuilt, atomic
 from __future__ import annotations
 
 import logging
-import os
 from pathlib import Path
 
 import h5py
@@ -19,6 +18,7 @@ import numpy as np
 import torch
 from tqdm.auto import tqdm
 
+from vgpl.atomic_write import atomic_path
 from vgpl.data.dataset_claim import written_by
 from vgpl.data.flow import FARNEBACK, farneback_flow
 from vgpl.data.trajectories import Rollouts
@@ -60,16 +60,13 @@ def ensure_flow_cache(root: str | Path, env: str, split: str, rollouts: Rollouts
     if cache_matches(path, config_hash, rollouts.rollout_ids, pairs):
         return path
     log.info("estimating optical flow once for %s/%s (%d videos, %d frame pairs each) into %s", env, split, len(rollouts.rollout_ids), pairs, path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(path.name + ".tmp")
     h, w = rollouts.images.shape[2:4]
-    with h5py.File(tmp, "w") as f:
+    with atomic_path(path) as tmp, h5py.File(tmp, "w") as f:
         flow = f.create_dataset("flow", (len(rollouts.rollout_ids), pairs, h, w, 2), dtype=np.float16, chunks=(1, 1, h, w, 2))
         for r in tqdm(range(len(rollouts.rollout_ids)), desc=f"optical flow {split}", unit="video", disable=not progress):
             flow[r] = farneback_flow(torch.as_tensor(np.asarray(rollouts.images[r, : pairs + 1]))).numpy().astype(np.float16)
         f.create_dataset("rollout_ids", data=rollouts.rollout_ids.numpy())
         f.attrs.update({"config_hash": config_hash, "method": METHOD, "env": env, "split": split})
-    os.replace(tmp, path)
     return path
 
 

@@ -9,7 +9,6 @@ for ``truth_proposals``), noise_std (metres), format_version.
 
 from __future__ import annotations
 
-import os
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -18,6 +17,7 @@ import numpy as np
 import torch
 from tqdm.auto import tqdm
 
+from vgpl.atomic_write import atomic_path
 from vgpl.data.schema import DatasetError
 from vgpl.data.window_pool import check_window_pool
 
@@ -110,10 +110,7 @@ def truth_proposals(positions: torch.Tensor, instance: torch.Tensor, n_instances
 
 
 def write_proposals(path: str | Path, proposals: Proposals) -> Path:
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(path.name + ".tmp")
-    with h5py.File(tmp, "w") as f:
+    with atomic_path(path) as tmp, h5py.File(tmp, "w") as f:
         f.create_dataset("positions", data=proposals.positions.numpy().astype(np.float32), chunks=(1, *proposals.positions.shape[1:]))
         f.create_dataset("logits", data=proposals.logits.numpy().astype(np.float32), chunks=(1, *proposals.logits.shape[1:]))
         f.create_dataset("rollout_ids", data=proposals.rollout_ids.numpy().astype(np.int64))
@@ -121,8 +118,7 @@ def write_proposals(path: str | Path, proposals: Proposals) -> Path:
             f.create_dataset("slots", data=proposals.slots.numpy().astype(np.float32), chunks=(1, *proposals.slots.shape[1:]))
         for k, v in {**proposals.attrs, "format_version": PROPOSALS_VERSION}.items():
             f.attrs[k] = v
-    os.replace(tmp, path)
-    return path
+    return Path(path)
 
 
 def read_proposals(path: str | Path, window_pool: str | None = None) -> Proposals:

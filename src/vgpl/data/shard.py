@@ -6,7 +6,6 @@ import errno
 import logging
 import os
 import shutil
-import uuid
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -15,6 +14,7 @@ import h5py
 import numpy as np
 
 from vgpl import __version__
+from vgpl.atomic_write import atomic_path
 from vgpl.data.schema import DATASETS, FORMAT_VERSION, DatasetError, check_values, reading, validate
 
 log = logging.getLogger(__name__)
@@ -43,15 +43,13 @@ def write_shard(path: str | Path, shard: Shard, compression_level: int = 4, plac
     the same bytes."""
     path = Path(path)
     check_values(path, {key: getattr(shard, key) for key in DATASETS}, shard.attrs["param_low"], shard.attrs["param_high"])
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = temporary_path(path)
     attrs = {
         **shard.attrs,
         "format_version": FORMAT_VERSION,
         "generator_version": __version__,
     }
     try:
-        with h5py.File(tmp, "w") as f:
+        with atomic_path(path, place) as tmp, h5py.File(tmp, "w") as f:
             for key in DATASETS:
                 data = getattr(shard, key)
                 chunks = (1, *data.shape[1:]) if data.ndim >= 3 and data.shape[-1] > 0 else None
@@ -61,27 +59,17 @@ def write_shard(path: str | Path, shard: Shard, compression_level: int = 4, plac
                 f.create_dataset("images", data=shard.images, chunks=(1, 1, h, w, c), compression="gzip", compression_opts=compression_level)
             for k, v in attrs.items():
                 f.attrs[k] = v
-        place(tmp, path)
     except OSError as error:
         if disk_full(error):
             raise OSError(errno.ENOSPC, f"{path.parent}: the disk is full ({shutil.disk_usage(path.parent).free / 1e6:.0f} MB free) while "
                                         f"writing {path.name}; its temporary file was removed and no shard was placed") from None
         raise
-    finally:
-        tmp.unlink(missing_ok=True)  # placed: gone already; failed (a full disk, an interrupt): not left behind
     return path
 
 
 def disk_full(error: OSError) -> bool:
     """Whether ``error`` is a full disk (errno ENOSPC, which h5py puts in its message only)."""
     return error.errno == errno.ENOSPC or "No space left on device" in str(error) or "errno = 28" in str(error)
-
-
-def temporary_path(path: Path) -> Path:
-    """A file name beside ``path`` that no other writer uses: ``<name>.<pid>-<random>.tmp``. Two
-    processes writing the same shard at once each write their own file, so neither truncates the
-    other's, and either one's rename puts a whole shard in place."""
-    return path.with_name(f"{path.name}.{os.getpid()}-{uuid.uuid4().hex[:8]}.tmp")
 
 
 def read_shard(path: str | Path, images: bool = True, rollouts: int | None = None, frames: int | None = None) -> Shard:

@@ -3,12 +3,12 @@
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 
 from hydra.utils import to_absolute_path
 from omegaconf import DictConfig
 
+from vgpl.atomic_write import atomic_path
 from vgpl.results import read_results, render, stale_blocks
 
 
@@ -25,9 +25,8 @@ def results(cfg: DictConfig) -> dict:
             continue
         stale[str(doc)] = stale_blocks(text, rows)
         if not cfg.task.check:
-            tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-            tmp.write_text(new)
-            tmp.replace(path)
+            with atomic_path(path) as tmp:
+                tmp.write_text(new)
             written.append(str(doc))
     if cfg.task.check and stale:
         raise ValueError(f"results tables differ from {cfg.task.dir}/: {stale}; re-render them with python run.py task=results")

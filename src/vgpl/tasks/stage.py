@@ -12,6 +12,7 @@ from lightning.pytorch.callbacks import Callback, ModelCheckpoint, Timer
 from lightning.pytorch.loggers import TensorBoardLogger
 from omegaconf import DictConfig, OmegaConf
 
+from vgpl.atomic_write import atomic_path
 from vgpl.checkpoint import check_resume
 from vgpl.hardware import precision_warning
 from vgpl.models.step_learning_rate import training_clock
@@ -127,9 +128,8 @@ class SaveConfig(Callback):
 
     def on_save_checkpoint(self, trainer: L.Trainer, pl_module: L.LightningModule, checkpoint: dict) -> None:
         if not self.written and trainer.is_global_zero:
-            tmp = self.path.with_name(self.path.name + ".tmp")
-            OmegaConf.save(self.config, tmp)
-            tmp.replace(self.path)
+            with atomic_path(self.path) as tmp:
+                OmegaConf.save(self.config, tmp)
             self.written = True
 
 
