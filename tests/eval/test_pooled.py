@@ -32,8 +32,8 @@ def test_two_seeds_of_a_variant_give_their_mean_and_each_run():
     assert full["checkpoints"] == [{"inference": "seed0/inference/last.ckpt"}, {"inference": "seed1/inference/last.ckpt"}]
 
     records = [seed0, other, seed1]
-    assert table1_rows(records)[1][-1] == ["VGPL", "7.5% (runs 7.0, 8.0)"]
-    assert table2_rows(records)[1][-1][-1] == "70.000"
+    assert table1_rows(records)[1][-1] == ["VGPL", "7.5 ± 0.7% (runs 7.0, 8.0)"]
+    assert table2_rows(records)[1][-1][-1] == "70.000 ± 7.071"  # runs 75 and 65
     header, rows = paired_rows(records, 20)  # videos 900, 901: VGPL 80, 60 against 90, 90
     row = dict(zip(header, rows[0]))
     assert row["VGPL T+20"] == "70.000" and row["mean difference (ablation - VGPL) [95% bootstrap]"].startswith("+20.000 [")

@@ -56,5 +56,5 @@ def test_two_seeds_of_one_variant_are_pooled_not_overwritten(tmp_path):
     seed1 = _evaluation(tmp_path / "seed1/full", "rigid_fall", "full", 8.0, 120.0)
     assert _report(tmp_path, f"[{seed0},{seed1}]")["n_records"] == 2
     text = (tmp_path / "report/report.md").read_text()
-    assert "| VGPL | 7.5% (runs 7.0, 8.0) |" in text and "| rigid_fall | VGPL | 2 | 7.0, 8.0 | 100.0, 120.0 |" in text
-    assert "| VGPL | 5.500 | 27.500 | 55.000 | 110.000 |" in text  # Table 2: the mean of the two runs
+    assert "| VGPL | 7.5 ± 0.7% (runs 7.0, 8.0) |" in text and "| rigid_fall | VGPL | 2 | 7.0, 8.0 | 100.0, 120.0 |" in text
+    assert "| VGPL | 5.500 ± 0.707 | 27.500 ± 3.536 | 55.000 ± 7.071 | 110.000 ± 14.142 |" in text  # Table 2: the mean ± sd of the two runs

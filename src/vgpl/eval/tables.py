@@ -6,6 +6,7 @@ from __future__ import annotations
 import csv
 import io
 import re
+import statistics
 from pathlib import Path
 from typing import NamedTuple
 
@@ -61,12 +62,14 @@ MIDPOINT_ROW = "range midpoint (constant guess)"
 
 
 def _mae_cell(record: dict | None, key: str = "param_mae_pct") -> str:
-    """"7.0% (5.4)": the MAE and its std over videos; for pooled runs "7.2% (runs 7.0, 7.4)"."""
+    """"7.0% (5.4)": the MAE and its std over videos; for pooled runs the mean ± sd over the runs
+    and each run's, "7.2 ± 0.3% (runs 7.0, 7.4)"."""
     if record is None or key not in record:
         return ""
     if f"{key}_std" in record:
         return f"{record[key]:.1f}% ({record[f'{key}_std']:.1f})"
-    return f"{record[key]:.1f}% (runs {', '.join(f'{v:.1f}' for v in record['run_values'][key])})"
+    runs = record["run_values"][key]
+    return f"{record[key]:.1f} ± {statistics.stdev(runs):.1f}% (runs {', '.join(f'{v:.1f}' for v in runs)})"
 
 
 def table1_rows(records: list[dict]) -> tuple[list[str], list[list[str]]]:
@@ -83,8 +86,16 @@ def table1_rows(records: list[dict]) -> tuple[list[str], list[list[str]]]:
 
 def table2_rows(records: list[dict]) -> tuple[list[str], list[list[str]]]:
     """Header and rows: future MSE x 1e4 at T+1, 5, 10, 20, per env."""
-    cells = lambda r: [f"{r[FUTURE.format(k)]:.3f}" if r and FUTURE.format(k) in r else "" for k in HORIZONS]  # noqa: E731
+    cells = lambda r: [_future_cell(r, FUTURE.format(k)) for k in HORIZONS]  # noqa: E731
     return ["method"] + [f"{e} T+{k}" for e in _envs(records) for k in HORIZONS], _method_rows(records, TABLE2_ROWS, cells)
+
+
+def _future_cell(record: dict | None, key: str) -> str:
+    """"4.329": a future MSE x 1e4; for pooled runs the mean ± sd over the runs, "4.329 ± 0.210"."""
+    if record is None or key not in record:
+        return ""
+    runs = record.get("run_values", {}).get(key)
+    return f"{record[key]:.3f}" + (f" ± {statistics.stdev(runs):.3f}" if runs and len(runs) > 1 else "")
 
 
 def _mse(value, sign: str = "") -> str:
