@@ -29,7 +29,7 @@ REPO = Path(__file__).resolve().parents[1]
 
 ACCURACY_KEYS = ("n_test", "param_mae_pct", "param_mae_pct_std", "param_bias_pct", "midpoint_param_mae_pct",
                  "future_mse_x1e4@1", "future_mse_x1e4@5", "future_mse_x1e4@10", "future_mse_x1e4@20",
-                 "refine_mse_x1e4_before", "refine_mse_x1e4_after")
+                 "refine_mse_x1e4_before", "refine_mse_x1e4_after", "flow_statistics_param_mae_pct")
 
 
 def accuracy(run_dir: Path) -> dict:

@@ -20,6 +20,7 @@ from vgpl.data.flow_cache import CachedFlow, ensure_flow_cache
 from vgpl.data.flow_windows import FlowWindows
 from vgpl.data.trajectories import load_split
 from vgpl.eval.compare import PER_VIDEO_PARAM
+from vgpl.eval.flow_statistics import window_flow_statistics
 from vgpl.eval.linear_probe import Ridge
 from vgpl.eval.metrics import param_error_pct
 from vgpl.eval.paired import per_video_map
@@ -117,6 +118,16 @@ def train_baseline(cfg: DictConfig) -> dict:
     return result
 
 
+def motion_alone(cfg: DictConfig, scene, test: FlowWindows) -> torch.Tensor:
+    """P [R, P] of the ``test`` windows as a ridge from their flow's statistics reads it
+    (vgpl.eval.flow_statistics), fitted on the same training videos and evaluation window as
+    DensePhysNet's decoder: how much of its score the visible motion explains without a network."""
+    spec = cfg.model.densephysnet
+    train = _windows(cfg, scene, _videos(cfg, scene, "train", spec.get("max_rollouts")), None, split="train")
+    ridge = Ridge.fit(*window_flow_statistics(train), spec.ridge_alpha)
+    return ridge.predict(window_flow_statistics(test)[0])
+
+
 def evaluate_baseline(cfg: DictConfig) -> dict:
     setup_run(cfg)
     scene = scene_of(cfg)
@@ -129,10 +140,13 @@ def evaluate_baseline(cfg: DictConfig) -> dict:
     videos = _videos(cfg, scene, "test", cfg.eval.get("max_rollouts"))
     test = _windows(cfg, scene, videos, None, split="test")
     x, y = features(model, test)
-    pred = ridge.predict(x).clamp(torch.as_tensor(scene.param_low, dtype=torch.float32), torch.as_tensor(scene.param_high, dtype=torch.float32))
-    err = param_error_pct(pred, y, test.r.param_low, test.r.param_high).mean(1)
+    low, high = torch.as_tensor(scene.param_low, dtype=torch.float32), torch.as_tensor(scene.param_high, dtype=torch.float32)
+    err = param_error_pct(ridge.predict(x).clamp(low, high), y, test.r.param_low, test.r.param_high).mean(1)
+    motion = motion_alone(cfg, scene, test)
+    motion_err = param_error_pct(motion.clamp(low, high), y, test.r.param_low, test.r.param_high).mean(1)
     record = {"env": scene.name, "method": "densephysnet", "ablation": "full", "n_test": len(test), "checkpoints": {"densephysnet": str(ckpt)},
               "param_mae_pct": float(err.mean()), "param_mae_pct_std": float(err.std()), "flow": test.flow,
+              "flow_statistics_param_mae_pct": float(motion_err.mean()),
               **flow_quality(model, _windows(cfg, scene, videos, None, reference=True, split="test")),
               PER_VIDEO_PARAM: per_video_map(videos.rollout_ids, err)}  # one window a video: paired by task=compare
     out = Path(cfg.paths.output_dir)
