@@ -4,7 +4,7 @@ whose backward gathers through an index as wide as the messages) against ``Propa
 at each preset's settings, with the two alternated in one process so that a shared machine's drift
 falls on both alike.
 
-    python benchmarks/aggregation.py --env rigid_fall --presets quick standard   # JSON lines on stdout
+    python benchmarks/aggregation.py --env rigid_fall --presets quick paper   # JSON lines on stdout
 
 A step is the module's loss, backward and Adam in fp32 on one window of engine-simulated rollouts
 (``inference_parts.setup``, ``inference_device.make_step``). Each round times ``--steps`` steps of each variant after one warm-up
@@ -31,7 +31,7 @@ from machine import describe  # noqa: E402
 import vgpl.nn.propagation as propagation  # noqa: E402
 
 VARIANTS = {"scatter": MessagePassing.aggregate, "index_add": propagation.Propagator.aggregate}
-PRESETS = ["quick", "standard"]
+PRESETS = ["quick", "paper"]
 
 
 def step_ms(step, steps: int) -> float:
@@ -45,7 +45,7 @@ def step_ms(step, steps: int) -> float:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--env", default="rigid_fall", choices=["rigid_fall", "fluid_cube", "mass_rope"])
-    parser.add_argument("--presets", nargs="+", default=["quick", "standard"], choices=PRESETS)
+    parser.add_argument("--presets", nargs="+", default=["quick", "paper"], choices=PRESETS)
     parser.add_argument("--rounds", type=int, default=6)
     parser.add_argument("--steps", type=int, default=5)
     parser.add_argument("--threads", type=int, default=2)

@@ -5,8 +5,8 @@ eager and with the message passing compiled, and where the step's time goes.
 
 From nothing, like ``inference_parts.py``: engine-simulated windows (proposals = true positions +
 5 mm noise), an untrained prior and module of the preset's shapes (the step's cost does not
-depend on the weights). A step is the module's loss at the preset's settings (two encoders, both
-starts, the tail), backward and Adam, under bf16 autocast unless ``--fp32``; the device is
+depend on the weights). A step is the module's loss at the preset's settings (``--preset``, the
+paper's by default), backward and Adam, under bf16 autocast unless ``--fp32``; the device is
 synchronised before each clock read. Median of ``--repeat`` steps after ``--warmup`` steps (the
 compiled variant compiles in its warm-ups).
 
@@ -104,7 +104,7 @@ def profile(step, device: torch.device, top: int) -> dict:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--env", default="rigid_fall", choices=["rigid_fall", "fluid_cube", "mass_rope"])
-    parser.add_argument("--preset", default="standard", help="experiment preset whose model.inference settings are timed")
+    parser.add_argument("--preset", default="paper", help="experiment preset whose model.inference settings are timed")
     parser.add_argument("--batches", type=int, nargs="+", default=[2, 16])
     parser.add_argument("--modes", nargs="+", default=["eager", "compile"], choices=["eager", "compile"])
     parser.add_argument("--device", default="cuda" if torch.cuda.is_available() else "cpu")

@@ -1,4 +1,4 @@
-"""Where an InferenceModule training step spends its time, at the standard preset's settings,
+"""Where an InferenceModule training step spends its time, at a preset's settings (--preset, the paper's by default),
 from nothing: windows of engine-simulated rollouts (proposals = true positions + 5 mm noise,
 as dense as a trained visual prior's), an untrained prior and module of the preset's shapes
 (the step's cost does not depend on the weights). No dataset or checkpoint is needed.
@@ -139,7 +139,7 @@ def parts(model, window, repeat: int) -> dict:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--env", default="rigid_fall", choices=["rigid_fall", "fluid_cube", "mass_rope"])
-    parser.add_argument("--preset", default="standard", help="experiment preset whose model.inference settings are timed")
+    parser.add_argument("--preset", default="paper", help="experiment preset whose model.inference settings are timed")
     parser.add_argument("--width", type=int, default=150, help="both networks' width (the paper's: 150)")
     parser.add_argument("--batch", type=int, default=2)
     parser.add_argument("--repeat", type=int, default=5)

@@ -1,7 +1,7 @@
 """Two InferenceModules trained side by side, one thread each, against one trained alone on all the
 threads (``task.modules_at_once``): training steps per second, from nothing, at a preset's settings.
 
-    python benchmarks/modules_at_once.py --presets quick standard   # JSON lines on stdout
+    python benchmarks/modules_at_once.py --presets quick paper   # JSON lines on stdout
 
 A step is the module's loss, backward and Adam on one window of engine-simulated rollouts
 (``inference_parts.setup``, ``inference_device.make_step``), at the preset's widths and at the
@@ -29,7 +29,7 @@ from machine import describe  # noqa: E402
 
 from vgpl.tasks.at_once import threads_each  # noqa: E402
 
-PRESETS = ["quick", "standard"]
+PRESETS = ["quick", "paper"]
 
 
 def module_precision(cfg) -> str:

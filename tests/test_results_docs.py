@@ -59,8 +59,12 @@ def test_a_presets_row_is_the_mean_and_sd_of_its_runs():
     row = next(line for line in table.splitlines() if line.startswith("| `python run.py env=mass_rope seed=<s>`"))
     cells = [c.strip() for c in row.strip("|").split("|")]
     assert cells == ["`python run.py env=mass_rope seed=<s>`, s = 0, 1, 2 [m1]", "20.0 ± 10.0%", "10.0, 20.0, 30.0",
-                     "25.0% (0.80 ± 0.40)", "40.0 ± 20.0%", "1.00 / 2.00 / 30.0 / 400", "8.00 -> 4.00"]
+                     "25.0% (0.80 ± 0.40)", "40.0 ± 20.0%", "", "1.00 / 2.00 / 30.0 / 400", "8.00 -> 4.00"]
     assert "| paper, VGPL | 2.9% (1.3) |" in table
+    for run, mae in zip(runs, (2.0, 4.0, 6.0)):  # DensePhysNet in the same runs: its own column
+        run["evaluate"]["densephysnet"] = {"param_mae_pct": mae, "midpoint_param_mae_pct": 25.0}
+    row = next(line for line in env_table(runs, "mass_rope").splitlines() if line.startswith("| `python run.py env=mass_rope"))
+    assert [c.strip() for c in row.strip("|").split("|")][5] == "4.0 ± 2.0%"
     assert "[m1] 3 runs from nothing (quick preset): 2-core Test CPU (family 1 model 2), torch 2.13.0+cpu; commit abc1234; 8.3-8.4 min a run." in table
 
 
@@ -71,3 +75,16 @@ def test_a_bad_results_line_is_named_with_its_file_and_line(tmp_path):
     (tmp_path / "runs.jsonl").write_text(json.dumps({"env": "rigid_fall"}) + "\n")
     with pytest.raises(ValueError, match=r"runs\.jsonl, line 1: a row needs 'env', and 'preset'"):
         read_results(tmp_path)
+
+
+def test_readmes_tables_keep_the_rows_run_over_three_seeds_and_results_md_lists_every_run():
+    """A preset run once is a single draw: the plain block leaves it out, the /all block shows it
+    with its footnote saying one run."""
+    seeded = [run_row("rigid_fall", s, mae, 25.0) for s, mae in enumerate((10.0, 12.0, 14.0))]
+    once = {**run_row("rigid_fall", 0, 8.0, 25.0), "preset": "standard"}
+    plain, every = env_table([*seeded, once], "rigid_fall"), env_table([*seeded, once], "rigid_fall/all")
+    assert "experiment=standard" not in plain and "| `python run.py env=rigid_fall seed=<s>`, s = 0, 1, 2 [r1] | 12.0 ± 2.0%" in plain
+    assert "| `python run.py experiment=standard env=rigid_fall seed=<s>`, s = 0 [r2] | 8.0% |" in every
+    assert "[r2] 1 run from nothing (standard preset)" in every
+    with pytest.raises(ValueError, match="results table 'rigid_fall/some'"):
+        env_table(seeded, "rigid_fall/some")

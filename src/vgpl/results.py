@@ -3,8 +3,9 @@ lines under ``results/``, re-rendered by ``python run.py task=results`` and chec
 number in the docs is always its data's.
 
 A docs file marks each rendered table with ``<!-- results:<env> -->`` ... ``<!-- /results -->``: the
-env's runs of each preset, every number a mean ± sd over the runs (one per seed), then the paper's
-rows. Two kinds of row, one JSON object per line:
+env's runs of each preset run over at least ``MIN_RUNS`` seeds, every number a mean ± sd over the
+runs (one per seed), then the paper's rows; ``<!-- results:<env>/all -->`` also shows the presets
+run fewer times (README.md's tables have no single-draw row, docs/results.md's list every run). Two kinds of row, one JSON object per line:
 
 - a run: the line ``benchmarks/main_job.py`` prints (``env``, ``overrides`` with ``seed=<s>``,
   ``wall_s``, each ablation's metrics under ``evaluate``, ``machine`` with the code's commit), with
@@ -26,6 +27,7 @@ from vgpl.eval.tables import markdown
 BLOCK = re.compile(r"<!-- results:(?P<name>[\w/]+) -->\n(?P<body>.*?)<!-- /results -->", re.S)
 HORIZONS = ("1", "5", "10", "20")
 PARAM = {"rigid_fall": "gravity", "mass_rope": "stiffness", "fluid_cube": "viscosity"}
+MIN_RUNS = 3  # seeds a row needs in a plain <env> block
 
 
 def read_results(folder: Path) -> list[dict]:
@@ -71,12 +73,14 @@ def _three(value: float) -> str:
 
 
 def _runs_row(runs: list[dict], key: str) -> list[str]:
-    """One table row over ``runs`` of one preset: the full model's numbers, mean ± sd over the runs."""
+    """One table row over ``runs`` of one preset: the full model's numbers, mean ± sd over the runs,
+    and DensePhysNet's where every run evaluated it."""
     full = [r["evaluate"]["full"] for r in runs]
     mae = [m["param_mae_pct"] for m in full]
     midpoint = statistics.mean(m["midpoint_param_mae_pct"] for m in full)
     ratio = [m["param_mae_pct"] / m["midpoint_param_mae_pct"] for m in full]
     no_rigid = [r["evaluate"]["no_rigidness"]["param_mae_pct"] for r in runs if "no_rigidness" in r["evaluate"]]
+    baseline = [r["evaluate"]["densephysnet"]["param_mae_pct"] for r in runs if "densephysnet" in r["evaluate"]]
     future = refine = ""
     if all(f"future_mse_x1e4@{k}" in m for m in full for k in HORIZONS):
         future = " / ".join(_three(statistics.mean(m[f"future_mse_x1e4@{k}"] for m in full)) for k in HORIZONS)
@@ -84,7 +88,8 @@ def _runs_row(runs: list[dict], key: str) -> list[str]:
         refine = " -> ".join(_three(statistics.mean(m[f"refine_mse_x1e4_{w}"] for m in full)) for w in ("before", "after"))
     cells = [f"`{_command(runs[0])}`, s = {', '.join(_seed(r) for r in runs)} [{key}]", _mean_sd(mae, "%"),
              ", ".join(f"{v:.1f}" for v in mae), f"{midpoint:.1f}% ({_mean_sd(ratio, digits=2)})",
-             _mean_sd(no_rigid, "%") if len(no_rigid) == len(runs) else "", future, refine]
+             _mean_sd(no_rigid, "%") if len(no_rigid) == len(runs) else "", _mean_sd(baseline, "%") if len(baseline) == len(runs) else "",
+             future, refine]
     return cells
 
 
@@ -97,29 +102,32 @@ def _machine(runs: list[dict]) -> str:
             f"{min(walls):.1f}-{max(walls):.1f} min a run")
 
 
-def env_table(rows: list[dict], env: str) -> str:
-    """The markdown table of ``env``: one row per preset and overrides (its runs over seeds), then
+def env_table(rows: list[dict], name: str) -> str:
+    """The markdown table of block ``name`` (``<env>`` or ``<env>/all``): one row per preset and
+    overrides (its runs over seeds; ``<env>`` alone keeps those with at least ``MIN_RUNS`` runs), then
     the paper's DensePhysNet and VGPL; footnotes give each row's command, machine and commit."""
-    if env not in PARAM:
-        raise ValueError(f"results table '{env}': expected one of {sorted(PARAM)}")
+    env, _, scope = name.partition("/")
+    if env not in PARAM or scope not in ("", "all"):
+        raise ValueError(f"results table '{name}': expected <env> or <env>/all, env one of {sorted(PARAM)}")
     groups: dict[tuple, list[dict]] = defaultdict(list)
     for row in rows:
         if row["env"] == env and row.get("source") != "paper":
             groups[(row["preset"], tuple(o for o in row.get("overrides", []) if not o.startswith("seed=")))].append(row)
     header = ["run", f"{PARAM[env]} MAE, mean ± sd", "per run", "range midpoint (MAE / midpoint)", "w/o rigidness",
-              "T+1 / 5 / 10 / 20", "refinement"]
+              "DensePhysNet", "T+1 / 5 / 10 / 20", "refinement"]
+    shown = [(key, runs) for key, runs in sorted(groups.items(), key=lambda item: item[0]) if scope == "all" or len(runs) >= MIN_RUNS]
     table, notes = [], []
-    for k, (_, runs) in enumerate(sorted(groups.items(), key=lambda item: item[0]), 1):
+    for k, (_, runs) in enumerate(shown, 1):
         key = f"{env[0]}{k}"
         table.append(_runs_row(runs, key))
         extra = "".join(f" {n}." for n in sorted({r["note"] for r in runs if r.get("note")}))
-        notes.append(f"[{key}] {len(runs)} runs from nothing ({runs[0]['preset']} preset): {_machine(runs)}.{extra}")
+        notes.append(f"[{key}] {len(runs)} run{'s' if len(runs) > 1 else ''} from nothing ({runs[0]['preset']} preset): {_machine(runs)}.{extra}")
     for method, label in (("densephysnet", "DensePhysNet"), ("vgpl", "VGPL")):
         for row in rows:
             if row["env"] == env and row.get("source") == "paper" and row["method"] == method:
                 future = " / ".join(str(row["future_mse_x1e4"].get(k, "-")) for k in HORIZONS) if row.get("future_mse_x1e4") else ""
                 refine = " -> ".join(str(v) for v in row["refine_mse_x1e4"]) if row.get("refine_mse_x1e4") else ""
-                table.append([f"paper, {label}", f"{row['param_mae_pct']}% ({row['param_mae_pct_std']})", "", "", "", future, refine])
+                table.append([f"paper, {label}", f"{row['param_mae_pct']}% ({row['param_mae_pct_std']})", "", "", "", "", future, refine])
     return markdown(header, table) + "\n\n" + "\n".join(notes) + ("\n" if notes else "")
 
 

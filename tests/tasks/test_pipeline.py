@@ -40,7 +40,7 @@ TINY = [
     # dX near zero and the refined MSE x 1e4 a coin flip about the proposals' 13.98 (12.92 to 14.07 in six draws, two above);
     # at 10, 12.78 to 12.94 in four
     "model.inference.net.refine_weight=10",
-    # the weights' moving average (as the standard preset's 0.998): the validation gravity swings by up to 10 points between
+    # the weights' moving average (as the quick preset's 0.99): the validation gravity swings by up to 10 points between
     # checkpoints 300 steps apart at this scale, and one CI draw ended 25.9% against the midpoint's 26.3%; with it
     # seeds 0 and 5 read 20.5% and 18.4% (refined MSE 12.86, 12.64), its CI run 21.4% (12.68)
     "model.inference.ema.decay=0.99",

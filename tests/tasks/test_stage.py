@@ -10,6 +10,7 @@ import lightning as L
 import pytest
 import torch
 from hydra import compose, initialize_config_dir
+from omegaconf import OmegaConf
 from omegaconf.errors import InterpolationKeyError
 from torch.utils.data import DataLoader, TensorDataset
 
@@ -17,7 +18,7 @@ from tests.conftest import REPO
 from vgpl.hardware import fast_precision
 from vgpl.models.step_learning_rate import annealed_fraction
 from vgpl.tasks import TASKS, check_resolvable, run_task
-from vgpl.tasks.pipeline import training_summary
+from vgpl.tasks.pipeline import time_budget, training_summary
 from vgpl.tasks.stage import (
     LastValidation,
     SpentTimeWarning,
@@ -31,6 +32,7 @@ from vgpl.tasks.stage import (
 )
 from vgpl.tasks.stage import fit as stage_fit
 from vgpl.tasks.stage_folder import StageFolderError
+from vgpl.tasks.time_budget import seconds
 
 
 class SlowRegression(L.LightningModule):
@@ -91,15 +93,16 @@ def test_a_fit_resumed_after_a_time_stop_reaches_max_steps_only_without_an_epoch
     assert resumed["stopped_by"] == ("max_steps" if reaches_max_steps else "max_epochs")
 
 
-@pytest.mark.parametrize("stage", ["visual", "inference", "densephysnet"])
-def test_the_standard_stages_after_the_prior_are_budgeted_in_steps(stage):
-    """Their trainers set max_steps and max_time; the top-level max_epochs (3, the prior's) must not
-    apply to them, or a resumed run ends early (test above)."""
+@pytest.mark.parametrize(("preset", "stage"), [("quick", "dynamics"), ("quick", "visual"), ("quick", "inference"),
+                                             ("standard", "dynamics"), ("standard", "visual"), ("standard", "inference"), ("standard", "densephysnet")])
+def test_the_timed_presets_stop_every_stage_by_steps_or_minutes_never_by_epochs(preset, stage):
+    """Each stage the preset's pipeline trains (the standard one trains DensePhysNet too) has a finite
+    max_steps and a max_time; max_epochs is out of reach (an epoch cap would end a resumed run
+    early: test above)."""
     with initialize_config_dir(str(REPO / "conf"), version_base="1.3"):
-        cfg = compose("config", overrides=["experiment=standard"])
+        cfg = compose("config", overrides=[f"experiment={preset}"])
     kwargs = trainer_kwargs(cfg, cfg.model[stage])
-    assert kwargs["max_epochs"] == -1 and kwargs["max_steps"] > 0 and kwargs["max_time"]
-    assert trainer_kwargs(cfg, cfg.model.dynamics)["max_epochs"] == 3
+    assert kwargs["max_steps"] > 0 and kwargs["max_time"] and kwargs["max_epochs"] == 1000
 
 
 def test_snapshots_keep_a_checkpoint_every_n_steps_named_by_its_step(tmp_path):
@@ -184,113 +187,96 @@ def test_the_reported_validation_describes_the_final_weights(max_steps, validati
 
 
 @pytest.mark.parametrize("env", ["rigid_fall", "fluid_cube", "mass_rope"])
-def test_the_standard_inference_stage_is_trained_as_the_readmes_measured_runs(env):
-    """The standard runs in docs/results.md had two encoders, both trajectory starts and an EMA of
-    0.998, and roll from the last refined frames (tail_horizon 5): the preset carries them, so one
-    command reproduces them."""
+def test_the_standard_preset_trains_the_quick_presets_networks_on_more_videos_for_longer(env):
+    """experiment=standard is the quick recipe at a larger scale: every network key, rate, scheme
+    and precision is the quick preset's, so the choices measured per CPU minute there carry over;
+    the data, the step and time caps and the weights' averaging are what grow."""
     with initialize_config_dir(str(REPO / "conf"), version_base="1.3"):
-        cfg = compose("config", overrides=[f"env={env}", "experiment=standard"])
-    net = cfg.model.inference.net
-    assert (net.separate_param_net, net.trajectory_start, net.lr) == (True, "both", 1e-4)
-    assert net.tail_horizon == 5 <= net.horizon  # a window holds the frames the tail is scored on
-    assert cfg.model.inference.ema.decay == 0.998 and cfg.model.inference.ema.start_step == 0
+        quick = compose("config", overrides=[f"env={env}", "experiment=quick"])
+        standard = compose("config", overrides=[f"env={env}", "experiment=standard"])
+    for stage in ("dynamics", "visual", "inference", "densephysnet"):
+        nets = [OmegaConf.to_container(cfg.model[stage].net) for cfg in (quick, standard)]
+        for net in nets:  # a step count: the prior's noise-free finish is the last quarter of each preset's steps
+            net.pop("noise_free_steps", None)
+        assert nets[0] == nets[1], stage
+        assert trainer_kwargs(standard, standard.model[stage])["max_steps"] > trainer_kwargs(quick, quick.model[stage])["max_steps"], stage
+    for stage in ("dynamics", "visual", "inference"):  # the precisions measured per CPU minute
+        assert trainer_kwargs(standard, standard.model[stage])["precision"] == trainer_kwargs(quick, quick.model[stage])["precision"], stage
+    test_videos = round(standard.data.n_rollouts * (1 - standard.data.train_fraction))
+    assert test_videos == standard.eval.max_rollouts == 100 and standard.task.baseline and not quick.task.baseline
+    assert (standard.model.dynamics.ema.decay, standard.model.inference.ema.decay) == (0.999, 0.995)
 
 
-def test_the_standard_visual_stage_anneals_the_last_third_of_its_budget():
-    """Its 15-min cap stops it near step 1,000 of 3,000 on a 2-core CPU, so the anneal
-    of the last 1,000 steps runs on the clock: it begins at 10 of the 15 minutes and ends at zero
-    at the cap, and on a machine fast enough to reach 3,000 steps it begins at step 2,000."""
+def test_the_standard_preset_plans_its_trainings_inside_its_one_hour_clock():
+    """The trainings' planned minutes (the two modules side by side count once each, as they hold
+    the machine together), the time held back for export and the evaluations, and five minutes for
+    generating RigidFall's 1,000 videos fit in the hour; the budget shortens the trainings when
+    generation runs late (FluidCube's longer videos: 500 of them)."""
     with initialize_config_dir(str(REPO / "conf"), version_base="1.3"):
         cfg = compose("config", overrides=["env=rigid_fall", "experiment=standard"])
-    visual = cfg.model.visual
-    assert (visual.net.lr, visual.net.lr_anneal_steps, visual.trainer.max_steps) == (1e-4, 1000, 3000)
-    budget_s = 15 * 60
-    assert visual.trainer.max_time == "00:00:15:00"
-    assert annealed_fraction(900, 3000, 1000, elapsed_s=600.0, budget_s=budget_s) == 1.0
-    assert annealed_fraction(900, 3000, 1000, elapsed_s=750.0, budget_s=budget_s) == pytest.approx(0.5)
-    assert annealed_fraction(1000, 3000, 1000, elapsed_s=budget_s, budget_s=budget_s) == 0.0
-    assert annealed_fraction(2500, 3000, 1000, elapsed_s=60.0, budget_s=budget_s) == pytest.approx(0.5)
+        fluid = compose("config", overrides=["env=fluid_cube", "experiment=standard"])
+    planned = time_budget(cfg).ahead
+    assert planned == {"train_dynamics": 720, "train_visual": 600, "train_inference/full": 600,
+                       "train_inference/no_rigidness": 600, "train_baseline": 300}
+    assert cfg.task.modules_at_once and seconds(cfg.task.time_budget.total) == 3600
+    assert sum(planned.values()) + cfg.task.time_budget.reserve_s + 5 * 60 <= 3600
+    fluid_videos = (fluid.data.n_rollouts, round(fluid.data.n_rollouts * (1 - fluid.data.train_fraction)))
+    assert fluid_videos == (500, fluid.eval.max_rollouts) and fluid.env.start_frame == 20  # observed past the cube's splash
 
 
 def test_the_standard_prior_ends_without_history_noise_on_its_clock():
-    """The last 13,000 of the 78,300 steps (3 epochs) train without the history noise; the 58-min
-    clock stops a 2-core CPU near 59,000 steps, so the finish runs on the clock: from
-    48.4 minutes to the end, and by step on a machine fast enough to reach 78,300. (MassRope's and
-    FluidCube's 58 min; RigidFall's prior has 20, whose finish begins at 16.7.)"""
+    """The last 7,500 of the 30,000 steps train without the history noise; the 12-min clock stops a
+    2-core CPU before 30,000 steps, so the finish runs on the clock: from minute 9 to the end, and
+    by step on a machine fast enough to reach 30,000. The quick prior finishes its last quarter too."""
     with initialize_config_dir(str(REPO / "conf"), version_base="1.3"):
         cfg = compose("config", overrides=["env=mass_rope", "experiment=standard"])
-    k, max_steps, budget_s = cfg.model.dynamics.net.noise_free_steps, cfg.trainer.max_steps, 58 * 60
-    assert (k, max_steps, cfg.trainer.max_time, cfg.trainer.max_epochs) == (13000, 78300, "00:00:58:00", 3)
-    begins_s = (1 - k / max_steps) * budget_s
-    assert begins_s / 60 == pytest.approx(48.37, abs=0.01)
-    assert annealed_fraction(40000, max_steps, k, elapsed_s=begins_s - 1, budget_s=budget_s) == 1.0  # still noisy
-    assert annealed_fraction(40000, max_steps, k, elapsed_s=begins_s + 1, budget_s=budget_s) < 1.0  # noise-free
-    assert annealed_fraction(65301, max_steps, k, elapsed_s=60.0, budget_s=budget_s) < 1.0  # by step on a fast machine
-    with initialize_config_dir(str(REPO / "conf"), version_base="1.3"):
         quick = compose("config", overrides=["env=rigid_fall", "experiment=quick"]).model.dynamics
-    assert (quick.net.noise_free_steps, quick.trainer.max_steps) == (750, 3000)  # the quick prior's last quarter too
+    k, trainer = cfg.model.dynamics.net.noise_free_steps, trainer_kwargs(cfg, cfg.model.dynamics)
+    max_steps, budget_s = trainer["max_steps"], seconds(trainer["max_time"])
+    assert (k, max_steps, budget_s) == (7500, 30000, 720)
+    begins_s = (1 - k / max_steps) * budget_s
+    assert begins_s == pytest.approx(540.0)
+    assert annealed_fraction(10000, max_steps, k, elapsed_s=begins_s - 1, budget_s=budget_s) == 1.0  # still noisy
+    assert annealed_fraction(10000, max_steps, k, elapsed_s=begins_s + 1, budget_s=budget_s) < 1.0  # noise-free
+    assert annealed_fraction(22501, max_steps, k, elapsed_s=60.0, budget_s=budget_s) < 1.0  # by step on a fast machine
+    assert (quick.net.noise_free_steps, quick.trainer.max_steps) == (750, 3000)
 
 
-def test_the_standard_prior_and_visual_stage_train_in_bf16_where_it_is_fast_and_the_baseline_in_fp32():
-    """The measured standard priors ran in bf16-mixed (FluidCube: 14.5 steps/s against 9.3 in fp32
-    on the AMD EPYC); the preset says so for the prior and the visual prior (RigidFall: 1,536 steps in its 15 minutes against 757,
-    proposal error 11.09 -> 8.85 x 1e4), where the CPU has bf16 units, while the baseline keeps the
-    fp32 it was measured in and the inference stage its own choice. ``trainer.precision`` still
-    reaches the prior, so fp32 commands reproduce."""
+@pytest.mark.parametrize("preset", ["quick", "standard"])
+def test_the_timed_presets_train_the_prior_in_fp32_on_every_cpu_and_the_other_stages_where_bf16_is_native(preset):
+    """At width 48 the prior's step is faster in fp32 even where the CPU has bf16 units
+    (docs/benchmarks.md), so the presets fix its precision, and the baseline's; the visual prior and
+    the modules keep the CPU's choice."""
     with initialize_config_dir(str(REPO / "conf"), version_base="1.3"):
-        cfg = compose("config", overrides=["env=fluid_cube", "experiment=standard"])
-        fp32 = compose("config", overrides=["env=fluid_cube", "experiment=standard", "trainer.precision=32-true"])
-    precision = {stage: trainer_kwargs(cfg, cfg.model[stage])["precision"] for stage in ("dynamics", "visual", "inference", "densephysnet")}
-    assert precision == {"dynamics": fast_precision("bf16-mixed"), "visual": fast_precision("bf16-mixed"), "inference": fast_precision("bf16-mixed"),
-                         "densephysnet": "32-true"}
-    assert trainer_kwargs(fp32, fp32.model.dynamics)["precision"] == "32-true"
-
-
-def test_the_quick_prior_trains_in_fp32_on_every_cpu_and_its_other_stages_where_bf16_is_native():
-    """At width 48 the quick prior's step is faster in fp32 even where the CPU has bf16 units
-    (docs/benchmarks.md), so the preset fixes its precision; the visual prior and the modules keep
-    the CPU's choice."""
-    with initialize_config_dir(str(REPO / "conf"), version_base="1.3"):
-        cfg = compose("config", overrides=["env=rigid_fall", "experiment=quick"])
+        cfg = compose("config", overrides=["env=rigid_fall", f"experiment={preset}"])
     precision = {stage: trainer_kwargs(cfg, cfg.model[stage])["precision"] for stage in ("dynamics", "visual", "inference")}
     assert precision == {"dynamics": "32-true", "visual": fast_precision("bf16-mixed"), "inference": fast_precision("bf16-mixed")}
+    if preset == "standard":  # the baseline it trains keeps the fp32 it was measured in
+        assert trainer_kwargs(cfg, cfg.model.densephysnet)["precision"] == "32-true"
 
 
-@pytest.mark.parametrize(("env", "prior", "module"), [("rigid_fall", "00:00:20:00", "00:01:03:00"),
-                                                      ("mass_rope", "00:00:58:00", "00:00:25:00"), ("fluid_cube", "00:00:58:00", "00:00:25:00")])
-def test_the_standard_split_of_minutes_between_prior_and_module_is_per_env(env, prior, module):
-    """RigidFall's module needs 1,500+ steps before P learns, which its 25-min cap did not reach on a
-    2-core CPU: its env config moves 38 of the prior's 58 minutes to the module; the
-    other envs keep the split their tables were measured with. The step caps are the same for all."""
-    with initialize_config_dir(str(REPO / "conf"), version_base="1.3"):
-        cfg = compose("config", overrides=[f"env={env}", "experiment=standard"])
-    assert (cfg.trainer.max_time, cfg.model.inference.trainer.max_time) == (prior, module)
-    assert (cfg.trainer.max_steps, cfg.model.inference.trainer.max_steps) == (78300, 3000)
-    # what the Trainer is given, not only what the config says
-    given = {stage: trainer_kwargs(cfg, cfg.model[stage]) for stage in ("dynamics", "inference")}
-    assert (given["dynamics"]["max_time"], given["inference"]["max_time"]) == (prior, module)
-    assert (given["dynamics"]["max_steps"], given["inference"]["max_steps"]) == (78300, 3000)
+REFERENCE_STEPS = [22561, 9521, 2598, 330]  # conf/per_env/standard_steps/rigid_fall.yaml
 
 
 def test_the_standard_preset_in_steps_runs_the_reference_machines_steps_without_a_clock():
     """experiment=standard_steps: each stage of RigidFall's standard preset runs the steps it
     reached in its minutes on the reference machine (docs/results.md), with the noise-free
-    finish and the visual anneal over the same shares as on the clock, on the standard preset's dataset;
-    on an env without reference steps reading a step budget fails, naming the key it lacks."""
+    finish over the same share as on the clock, on the standard preset's dataset and with no run
+    clock; on an env without reference steps reading a step budget fails, naming the key it lacks."""
     with initialize_config_dir(str(REPO / "conf"), version_base="1.3"):
         steps = compose("config", overrides=["env=rigid_fall", "experiment=standard_steps"])
         clock = compose("config", overrides=["env=rigid_fall", "experiment=standard"])
         other = compose("config", overrides=["env=mass_rope", "experiment=standard_steps"])
     given = {s: trainer_kwargs(steps, steps.model[s]) for s in ("dynamics", "visual", "inference", "densephysnet")}
-    assert all(t["max_time"] is None for t in given.values())
-    assert [given[s]["max_steps"] for s in ("dynamics", "visual", "inference", "densephysnet")] == [15129, 1499, 2600, 2000]
-    noise_free = steps.model.dynamics.net.noise_free_steps / steps.trainer.max_steps
-    assert noise_free == pytest.approx(clock.model.dynamics.net.noise_free_steps / clock.trainer.max_steps, abs=1e-3)
-    assert steps.model.visual.net.lr_anneal_steps / 1499 == pytest.approx(1 / 3, abs=1e-3)
+    assert all(t["max_time"] is None for t in given.values()) and steps.task.time_budget.total is None
+    assert [given[s]["max_steps"] for s in ("dynamics", "visual", "inference", "densephysnet")] == REFERENCE_STEPS
+    noise_free = steps.model.dynamics.net.noise_free_steps / given["dynamics"]["max_steps"]
+    assert noise_free == pytest.approx(clock.model.dynamics.net.noise_free_steps / clock.model.dynamics.trainer.max_steps, abs=1e-3)
     assert steps.paths.data_dir == clock.paths.data_dir and steps.paths.ckpt_dir != clock.paths.ckpt_dir
-    assert steps.model.inference.window_span == clock.model.inference.window_span == 5  # the rest is the standard preset
+    module = [{**OmegaConf.to_container(c.model.inference), "trainer": None} for c in (steps, clock)]
+    assert module[0] == module[1]  # the rest is the standard preset
     with pytest.raises(InterpolationKeyError, match="reference_steps.dynamics"):
-        other.trainer.max_steps  # noqa: B018
+        other.model.dynamics.trainer.max_steps  # noqa: B018
 
 
 def test_a_task_whose_config_cannot_resolve_fails_before_it_reads_or_writes_anything(tmp_path):
@@ -303,8 +289,8 @@ def test_a_task_whose_config_cannot_resolve_fails_before_it_reads_or_writes_anyt
         for task in ("generate", "train_dynamics", "pipeline"):
             cfg = compose("config", overrides=["env=mass_rope", "experiment=standard_steps", f"task={task}",
                                                f"paths.root_dir={root}", f"paths.output_dir={root}/out"])
-            with pytest.raises(ValueError, match=rf"task={task}: .*'model\.dynamics\.net\.noise_free_steps'.*"
-                                                 r"reference_steps\.dynamics_noise_free.*nothing was read or written"):
+            with pytest.raises(ValueError, match=rf"task={task}: .*'model\.dynamics\.trainer\.max_steps'.*"
+                                                 r"reference_steps\.dynamics.*nothing was read or written"):
                 run_task(cfg)
             assert not root.exists()
         tasks = sorted(p.stem for p in (REPO / "conf" / "task").glob("*.yaml"))
