@@ -55,7 +55,7 @@ def _seed(row: dict) -> str:
 
 
 def _command(row: dict) -> str:
-    rest = [o for o in row.get("overrides", []) if not o.startswith("seed=")]
+    rest = [o for o in row.get("overrides", []) if not o.startswith(("seed=", "experiment="))]  # the preset names its own
     preset = [] if row["preset"] == "quick" else [f"experiment={row['preset']}"]
     return " ".join(["python run.py", *preset, *rest, "seed=<s>"])
 
@@ -98,8 +98,8 @@ def _machine(runs: list[dict]) -> str:
     cpus = {f"{r['machine']['cores']}-core {r['machine']['cpu']} ({r['machine']['cpu_generation']})" for r in runs}
     commits = sorted({r["machine"]["code"] or "unknown" for r in runs})
     walls = [r["wall_s"] / 60 for r in runs]
-    return (f"{'; '.join(sorted(cpus))}, torch {m['torch']}; commit {', '.join(commits)}; "
-            f"{min(walls):.1f}-{max(walls):.1f} min a run")
+    span = f"{walls[0]:.1f} min" if len(walls) == 1 else f"{min(walls):.1f}-{max(walls):.1f} min a run"
+    return f"{'; '.join(sorted(cpus))}, torch {m['torch']}; commit {', '.join(commits)}; {span}"
 
 
 def env_table(rows: list[dict], name: str) -> str:
