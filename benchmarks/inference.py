@@ -37,7 +37,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from machine import describe  # noqa: E402
 
 from vgpl.checkpoint import load_stage, scene_of  # noqa: E402
-from vgpl.data.grounding import GroundingDataModule  # noqa: E402
+from vgpl.data.inference_windows import InferenceDataModule  # noqa: E402
 from vgpl.models.dynamics_prior import DynamicsPrior  # noqa: E402
 from vgpl.models.inference import InferenceModule  # noqa: E402
 
@@ -54,7 +54,7 @@ COMPILED = {  # --compile: the submodules of the prior and of each encoder that 
 }
 
 
-def measure(dm: GroundingDataModule, dynamics: DynamicsPrior, scene, radius: float, batch: int, settings: dict, repeat: int,
+def measure(dm: InferenceDataModule, dynamics: DynamicsPrior, scene, radius: float, batch: int, settings: dict, repeat: int,
             bf16: bool = True, profile: int = 0, compile_parts: str = "none") -> dict:
     """The median step of the module built with ``settings`` (InferenceModule's keywords: a VARIANTS
     row's, or a run's whole ``model.inference.net``); with ``profile`` > 0, also the ``profile``
@@ -132,7 +132,7 @@ def main() -> None:
                 parser.error(f"--set {item}: model.inference.net has no key {key!r} (keys: {', '.join(sorted(net))})")
             net[key] = yaml.safe_load(value)
     horizon = net["horizon"] if net is not None else 5
-    dm = GroundingDataModule(args.data, scene, 10, horizon, 2, cfg.env.get("start_frame", 0), 1, preset.window_span if args.preset else args.window_span)
+    dm = InferenceDataModule(args.data, scene, 10, horizon, 2, cfg.env.get("start_frame", 0), 1, preset.window_span if args.preset else args.window_span)
     dm.setup()
     machine = describe()
     radius = float(cfg.env.graph_radius)

@@ -33,9 +33,9 @@ from machine import describe  # noqa: E402
 
 import vgpl.nn.propagation as propagation  # noqa: E402
 from vgpl.data.trajectories import NormStats, Rollouts, ground_truth_grouping  # noqa: E402
-from vgpl.eval.rollout import rollout  # noqa: E402
 from vgpl.graph import edge_features, radius_graph  # noqa: E402
 from vgpl.models.dynamics_prior import DynamicsPrior  # noqa: E402
+from vgpl.models.rollout import rollout  # noqa: E402
 
 CONF = Path(__file__).resolve().parents[1] / "conf"
 

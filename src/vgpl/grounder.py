@@ -24,11 +24,11 @@ from omegaconf import OmegaConf
 
 from vgpl.checkpoint import load_stage, saved_config, scene_of
 from vgpl.data.window_pool import pool_windows
-from vgpl.eval.grounding import observed_proposals
-from vgpl.eval.rollout import rollout
+from vgpl.eval.protocol import observed_proposals
 from vgpl.eval.test_time_fit import TestTimeFit, refit_inferred
 from vgpl.models.dynamics_prior import DynamicsPrior
 from vgpl.models.inference import InferenceModule
+from vgpl.models.rollout import rollout
 from vgpl.models.visual_prior import VisualPrior
 
 

@@ -5,7 +5,7 @@ import pytest
 import torch
 
 from vgpl.eval.error_breakdown import error_breakdown, rollout_mse_x1e4
-from vgpl.eval.rollout import future_mse
+from vgpl.models.rollout import future_mse
 
 
 def test_translation_is_all_centroid_error_and_a_spin_none():

@@ -5,8 +5,8 @@ import pytest
 import torch
 
 from vgpl.eval.error_sources import VARIANTS, RolloutInputs, error_sources, error_sources_rows, with_truth
-from vgpl.eval.rollout import rollout
 from vgpl.models.dynamics_prior import DynamicsPrior
+from vgpl.models.rollout import rollout
 from vgpl.sim.envs import make_scene
 
 

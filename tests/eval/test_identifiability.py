@@ -6,7 +6,7 @@ import pytest
 import torch
 
 from vgpl.eval.identifiability import oracle_param_sweep, param_gradient_agreement, rigidness_sweep
-from vgpl.eval.rollout import rollout
+from vgpl.models.rollout import rollout
 
 
 class Falling:

@@ -5,7 +5,6 @@ from __future__ import annotations
 import pytest
 import torch
 
-from vgpl.eval.metrics import midpoint_error_pct
 from vgpl.eval.paired import paired_bootstrap, sign_test_p
 from vgpl.eval.tables import (
     MIDPOINT_ROW,
@@ -20,6 +19,7 @@ from vgpl.eval.tables import (
     report_markdown,
     table1_rows,
 )
+from vgpl.metrics import midpoint_error_pct
 
 
 def _record(env: str, ablation: str, mae: float, midpoint: float | None = None) -> dict:

@@ -4,8 +4,8 @@ import numpy as np
 import pytest
 import torch
 
-from vgpl.eval.rollout import future_mse, rollout, rollout_runs
 from vgpl.models.dynamics_prior import DynamicsPrior
+from vgpl.models.rollout import future_mse, rollout, rollout_runs
 from vgpl.nn.rigid import momentum_projection, quaternion_to_matrix, rigid_displacement
 from vgpl.sim.envs import make_scene
 

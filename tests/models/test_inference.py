@@ -13,10 +13,10 @@ from tests.conftest import REPO
 from tests.models.learning_rate_callbacks import BatchClock, LearningRates
 from vgpl.data.proposals import propose_videos
 from vgpl.data.vertical_symmetry import about_vertical
-from vgpl.eval.rollout import rollout_runs as inference_rollout_runs
 from vgpl.graph import own_radius_graph
 from vgpl.models.dynamics_prior import DynamicsPrior
 from vgpl.models.inference import InferenceModule
+from vgpl.models.rollout import rollout_runs as inference_rollout_runs
 from vgpl.models.step_learning_rate import annealed_fraction
 from vgpl.models.visual_prior import VisualPrior
 from vgpl.nn.rigid_start import rigid_start
@@ -87,7 +87,7 @@ def test_which_trajectory_trains_the_refinement_and_which_the_parameters(start):
 def test_both_starts_rolled_as_one_batch_give_each_start_alone():
     """trajectory_start="both" rolls the refined and the true start as one batch of 2B scenes; each
     loss is what a rollout of its start alone gives (a reference computed here with rollout())."""
-    from vgpl.eval.rollout import rollout
+    from vgpl.models.rollout import rollout
 
     torch.manual_seed(0)
     dyn, inf = _modules(trajectory_start="both")
@@ -108,7 +108,7 @@ def test_the_paper_scheme_rolls_each_network_with_the_true_values_of_the_others_
     the true P and reaches neither the parameter head nor its encoder; the parameter network's
     rollout starts at the true frames with the true G and Q and reaches only P's pathway. Each loss
     equals a rollout computed here with those inputs."""
-    from vgpl.eval.rollout import rollout
+    from vgpl.models.rollout import rollout
 
     torch.manual_seed(0)
     dyn, inf = _modules(training_scheme="paper")
@@ -136,7 +136,7 @@ def test_the_authors_code_lengths_one_step_from_each_refined_history_and_two_ste
     """refined_steps=0, truth_steps=2, one_step_windows=None (the authors' code): dX and Q learn from
     one step off every refined history of the window, fed the true P; P from a 2-step rollout off the
     true frames. Each loss equals the prior's prediction computed here with those inputs."""
-    from vgpl.eval.rollout import rollout
+    from vgpl.models.rollout import rollout
 
     torch.manual_seed(0)
     dyn, inf = _modules(training_scheme="paper", one_step_windows=None, refined_steps=0, truth_steps=2)
@@ -172,7 +172,7 @@ def test_the_paper_scheme_needs_the_papers_two_networks():
 
 def test_the_tail_loss_rolls_from_the_last_refined_frames_where_the_evaluation_starts():
     """tail_horizon=k: an L1 of k frames rolled from the last h refined frames past the window."""
-    from vgpl.eval.rollout import rollout
+    from vgpl.models.rollout import rollout
 
     torch.manual_seed(0)
     dyn, inf = _modules(tail_horizon=2)
@@ -206,7 +206,7 @@ def test_in_the_paper_scheme_the_tail_rolls_with_the_true_parameters():
     """training_scheme="paper" with tail_horizon=k: the tail rolls the last h refined frames with the
     true P and the module's Q, so its gradient never reaches P; with tail_detach_rigidness (the quick
     preset's) it reaches dX alone, and Q and P learn as in the paper."""
-    from vgpl.eval.rollout import rollout
+    from vgpl.models.rollout import rollout
 
     torch.manual_seed(0)
     paper = {"training_scheme": "paper", "one_step_windows": None, "refined_steps": 0, "truth_steps": 2, "tail_horizon": 2}
@@ -232,7 +232,7 @@ def test_bernoulli_rigidness_learns_from_the_rollout_error_expected_over_each_la
     """rigidness_estimator=bernoulli: the prior sees the label Q > 0.5; Q's loss is
     mean Q L1(rigid) + (1 - Q) L1(free) over scenes and instances, each L1 rolled here with that
     instance's label set by hand (on the trajectory that trains P), and Q learns from it alone."""
-    from vgpl.eval.rollout import rollout
+    from vgpl.models.rollout import rollout
 
     torch.manual_seed(0)
     dyn, inf = _modules(trajectory_start=start, rigidness_estimator="bernoulli")

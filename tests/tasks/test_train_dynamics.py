@@ -10,7 +10,7 @@ from omegaconf import OmegaConf
 
 from tests.conftest import REPO
 from vgpl.checkpoint import CheckpointError
-from vgpl.data.grounding import proposals_path
+from vgpl.data.inference_windows import proposals_path
 from vgpl.data.proposals import Proposals, write_proposals
 from vgpl.data.schema import DatasetError
 from vgpl.data.trajectories import load_split

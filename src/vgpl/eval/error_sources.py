@@ -15,7 +15,7 @@ import torch
 
 from vgpl.eval.error_breakdown import rollout_mse_x1e4
 from vgpl.eval.paired import paired_bootstrap
-from vgpl.eval.rollout import FUTURE, future_mse, rollout
+from vgpl.models.rollout import FUTURE, future_mse, rollout
 
 SOURCES = ("start_positions", "start_velocities", "grouping", "rigidness", "params")
 # name -> the inputs taken from the truth; "inferred" is VGPL's rollout, "all true" the prior's own error

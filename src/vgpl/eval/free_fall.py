@@ -70,7 +70,7 @@ class FreeFallSplit:
 
     @classmethod
     def of(cls, rollouts, proposals, frames: int) -> FreeFallSplit:
-        """From a split's Rollouts and its Proposals (vgpl.data.grounding.split_with_proposals),
+        """From a split's Rollouts and its Proposals (vgpl.data.inference_windows.split_with_proposals),
         frames 0..frames-1."""
         truth = rollouts.positions[:, :frames].double()
         error = proposals.positions[:, :frames].double() - truth

@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import torch
 
-from vgpl.eval.rollout import rollout
+from vgpl.models.rollout import rollout
 
 
 def rollout_l1_per_scene(model, positions, grouping, rigidness, params, planes, kinematic, n_steps: int,

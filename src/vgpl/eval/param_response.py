@@ -23,7 +23,7 @@ import torch
 
 from vgpl.data.trajectories import Rollouts, true_window
 from vgpl.eval.one_step import slope
-from vgpl.eval.rollout import rollout
+from vgpl.models.rollout import rollout
 from vgpl.sim.scene import RolloutSample, Scene
 
 

@@ -12,10 +12,10 @@ from typing import NamedTuple
 
 import torch
 
-from vgpl.eval.metrics import rms_mm
 from vgpl.eval.paired import paired_bootstrap, paired_values
 from vgpl.eval.pooled import pool_runs, variant
-from vgpl.eval.rollout import FUTURE
+from vgpl.metrics import rms_mm
+from vgpl.models.rollout import FUTURE
 
 ENVS = ("mass_rope", "rigid_fall", "fluid_cube")  # the paper's column order
 HORIZONS = (1, 5, 10, 20)

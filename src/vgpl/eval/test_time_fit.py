@@ -19,7 +19,7 @@ from dataclasses import dataclass
 import torch
 from tqdm.auto import tqdm
 
-from vgpl.eval.rollout import rollout
+from vgpl.models.rollout import rollout
 from vgpl.nn.rigid_start import rigid_start
 
 

@@ -29,8 +29,8 @@ import torch
 from torch import nn
 from torch_geometric.nn import MLP
 
-from vgpl.eval.rollout import rollout
 from vgpl.graph import edge_features, max_degree, plane_ghosts, radius_graph
+from vgpl.models.rollout import rollout
 from vgpl.models.step_learning_rate import annealed_fraction, set_learning_rate, training_clock
 from vgpl.nn.normalisation import NormalisationBuffers
 from vgpl.nn.propagation import EdgeEncoder, Propagator

@@ -59,9 +59,9 @@ from torch import nn
 from torch_geometric.nn import MLP
 
 from vgpl.data.vertical_symmetry import random_about_vertical
-from vgpl.eval.metrics import correct_rigidness_prob, mean_per_type
-from vgpl.eval.rollout import rollout, rollout_runs
 from vgpl.graph import edge_features, radius_graph
+from vgpl.metrics import correct_rigidness_prob, mean_per_type
+from vgpl.models.rollout import rollout, rollout_runs
 from vgpl.models.step_learning_rate import AnnealedLearningRate
 from vgpl.nn.normalisation import NormalisationBuffers
 from vgpl.nn.propagation import EdgeEncoder, Propagator

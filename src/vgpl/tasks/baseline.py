@@ -22,9 +22,9 @@ from vgpl.data.trajectories import load_split
 from vgpl.eval.compare import PER_VIDEO_PARAM
 from vgpl.eval.flow_statistics import window_flow_statistics
 from vgpl.eval.linear_probe import Ridge
-from vgpl.eval.metrics import param_error_pct
 from vgpl.eval.paired import per_video_map
 from vgpl.eval.tables import write_tables
+from vgpl.metrics import param_error_pct
 from vgpl.models.densephysnet import DensePhysNet
 from vgpl.tasks.stage import fit, setup_run, stage_checkpoint, stopping
 

@@ -20,7 +20,7 @@ from omegaconf import DictConfig, OmegaConf
 from torch.utils.tensorboard import SummaryWriter
 
 from vgpl.checkpoint import load_stage, scene_of
-from vgpl.data.grounding import proposals_path
+from vgpl.data.inference_windows import proposals_path
 from vgpl.data.proposals import exported_proposals, proposal_source
 from vgpl.data.trajectories import load_split
 from vgpl.data.window_pool import check_window_pool
@@ -28,15 +28,15 @@ from vgpl.eval import figures
 from vgpl.eval.compare import PER_VIDEO_PARAM, PER_VIDEO_RIGIDNESS
 from vgpl.eval.error_breakdown import error_breakdown, rollout_mse_x1e4
 from vgpl.eval.error_sources import error_sources_rows
-from vgpl.eval.grounding import evaluate_grounding, proposed_frames
 from vgpl.eval.paired import per_video_map
 from vgpl.eval.preview import write_gif
-from vgpl.eval.rollout import FUTURE
+from vgpl.eval.protocol import evaluate_grounding, proposed_frames
 from vgpl.eval.tables import HORIZONS, PER_VIDEO, csv_text, markdown, param_rows, write_tables
 from vgpl.eval.tensorboard_media import add_gif, rollout_video
 from vgpl.eval.test_time_fit import TestTimeFit
 from vgpl.models.dynamics_prior import DynamicsPrior
 from vgpl.models.inference import InferenceModule
+from vgpl.models.rollout import FUTURE
 from vgpl.models.visual_prior import VisualPrior
 from vgpl.tasks.stage import setup_run, stage_checkpoint
 from vgpl.tasks.train_inference import ablation_prior, inference_stage

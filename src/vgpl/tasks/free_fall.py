@@ -13,10 +13,10 @@ from pathlib import Path
 import torch
 from omegaconf import DictConfig
 
-from vgpl.data.grounding import split_with_proposals
+from vgpl.data.inference_windows import split_with_proposals
 from vgpl.eval.free_fall import FreeFallSplit, calibration
-from vgpl.eval.metrics import param_signed_error_pct
 from vgpl.eval.tables import markdown
+from vgpl.metrics import param_signed_error_pct
 
 log = logging.getLogger(__name__)
 

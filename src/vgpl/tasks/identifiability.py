@@ -17,7 +17,7 @@ import torch
 from omegaconf import DictConfig
 
 from vgpl.checkpoint import load_stage, scene_of
-from vgpl.data.grounding import proposals_path
+from vgpl.data.inference_windows import proposals_path
 from vgpl.data.proposals import read_proposals
 from vgpl.data.schema import DatasetError
 from vgpl.data.trajectories import Rollouts, load_split, true_window

@@ -17,9 +17,9 @@ from vgpl.data.schema import DatasetError
 from vgpl.data.trajectories import Rollouts, TrajectoryDataModule, load_split, true_window
 from vgpl.eval.error_breakdown import error_breakdown
 from vgpl.eval.preview import write_gif
-from vgpl.eval.rollout import NO_MOTION, future_mse, rollout
 from vgpl.eval.tensorboard_media import add_gif, rollout_video
 from vgpl.models.dynamics_prior import DynamicsPrior
+from vgpl.models.rollout import NO_MOTION, future_mse, rollout
 from vgpl.sim.scene import Scene
 from vgpl.tasks.identifiability import (
     check_sweep_frames,

@@ -12,7 +12,7 @@ import hydra
 from omegaconf import DictConfig
 
 from vgpl.checkpoint import init_from_spec, load_stage, scene_of
-from vgpl.data.grounding import GroundingDataModule
+from vgpl.data.inference_windows import InferenceDataModule
 from vgpl.models.dynamics_prior import DynamicsPrior
 from vgpl.models.inference import InferenceModule
 from vgpl.tasks.stage import dynamics_stage, fit, setup_run, stage_checkpoint, stopping, validate_final
@@ -34,10 +34,10 @@ def ablation_prior(ablation: DictConfig) -> str:
     return dynamics_stage(bool(ablation.get("unconstrained_prior")))
 
 
-def grounding_datamodule(cfg: DictConfig, scene) -> GroundingDataModule:
+def inference_datamodule(cfg: DictConfig, scene) -> InferenceDataModule:
     """The inference module's windows as ``cfg.model.inference`` and ``cfg.env`` set them (not yet set up)."""
     spec = cfg.model.inference
-    return GroundingDataModule(cfg.data.root, scene, spec.observed, spec.net.horizon, spec.batch_size, cfg.env.get("start_frame", 0),
+    return InferenceDataModule(cfg.data.root, scene, spec.observed, spec.net.horizon, spec.batch_size, cfg.env.get("start_frame", 0),
                                spec.window_stride, spec.get("window_span"), val_span=spec.get("val_window_span"),
                                window_pool=spec.get("window_pool", "last"), target_proposals=spec.net.get("rollout_target", "truth") == "proposals")
 
@@ -50,7 +50,7 @@ def train_inference(cfg: DictConfig) -> dict:
         raise ValueError(f"model.inference.net.param_rotation=true: env={scene.name} is not symmetric about the vertical axis "
                          f"(planes or sampling that a rotation would change); only RigidFall is")
     dynamics, _ = load_stage(stage_checkpoint(cfg, ablation_prior(cfg.ablation)), DynamicsPrior, env=scene.name)
-    dm = grounding_datamodule(cfg, scene)
+    dm = inference_datamodule(cfg, scene)
     dm.setup()
     source = {"proposals_source": str(dm.train_proposals.attrs.get("source", "visual")),
               "proposals_noise_std": float(dm.train_proposals.attrs.get("noise_std", 0.0))}

@@ -13,7 +13,7 @@ import torch
 from omegaconf import DictConfig
 
 from vgpl.checkpoint import load_stage, scene_of
-from vgpl.data.grounding import proposals_path
+from vgpl.data.inference_windows import proposals_path
 from vgpl.data.proposals import Proposals, proposal_source, propose_windows, truth_proposals, write_proposals
 from vgpl.data.shard import read_first_rollouts
 from vgpl.data.trajectories import load_split

@@ -37,7 +37,7 @@ def split_with_proposals(root: str | Path, env: str, split: str, window_pool: st
     return rollouts, proposals
 
 
-class GroundingWindows(Dataset):
+class InferenceWindows(Dataset):
     """Item: proposals [T, N, 3], logits [T, N, M], positions [T + k, N, 3] (truth), planes
     [T + k, K, 4], params [P], kinematic [N], rigid [M] (the true rigidness, only logged). Windows start at ``start_frame`` and every
     ``stride``-th frame after it, up to ``start_frame + span`` when ``span`` is given. The proposals
@@ -86,14 +86,14 @@ class GroundingWindows(Dataset):
         }
 
 
-class GroundingDataModule(L.LightningDataModule):
+class InferenceDataModule(L.LightningDataModule):
     def __init__(self, root: str, scene: Scene, observed: int = 10, horizon: int = 5, batch_size: int = 2,
                  start_frame: int = 0, stride: int = 1, span: int | None = None, num_workers: int = 0,
                  val_span: int | None = None, window_pool: str = "last", target_proposals: bool = False) -> None:
         """Training windows start every ``stride`` frames within ``span`` frames of ``start_frame``;
         validation windows (on the test split) every ``observed`` frames within ``val_span`` (None:
         ``span``; 0: only the evaluation's window, one per test video). ``window_pool`` and
-        ``target_proposals``: as GroundingWindows."""
+        ``target_proposals``: as InferenceWindows."""
         super().__init__()
         if val_span is not None and val_span < 0:
             raise ValueError(f"model.inference.val_window_span={val_span}: expected a frame count >= 0, or null for window_span")
@@ -115,11 +115,11 @@ class GroundingDataModule(L.LightningDataModule):
             self.stats = NormStats.from_rollouts(self.train, torch.as_tensor(self.scene.kinematic))
 
     def train_dataloader(self) -> DataLoader:
-        ds = GroundingWindows(self.train, self.train_proposals, self.scene, self.observed, self.horizon, self.start_frame, self.stride, self.span, self.window_pool,
+        ds = InferenceWindows(self.train, self.train_proposals, self.scene, self.observed, self.horizon, self.start_frame, self.stride, self.span, self.window_pool,
                               self.target_proposals)
         return DataLoader(ds, batch_size=self.batch_size, shuffle=True, num_workers=self.num_workers, drop_last=len(ds) > self.batch_size)
 
     def val_dataloader(self) -> DataLoader:
-        ds = GroundingWindows(self.test, self.test_proposals, self.scene, self.observed, self.horizon, self.start_frame, self.observed, self.val_span,
+        ds = InferenceWindows(self.test, self.test_proposals, self.scene, self.observed, self.horizon, self.start_frame, self.observed, self.val_span,
                              self.window_pool, self.target_proposals)
         return DataLoader(ds, batch_size=self.batch_size, shuffle=False, num_workers=self.num_workers)

@@ -7,7 +7,7 @@ import torch
 from omegaconf import OmegaConf
 
 from vgpl.data.trajectories import Rollouts
-from vgpl.eval.grounding import evaluate_grounding
+from vgpl.eval.protocol import evaluate_grounding
 from vgpl.models.dynamics_prior import DynamicsPrior
 from vgpl.models.inference import InferenceModule
 from vgpl.models.visual_prior import VisualPrior

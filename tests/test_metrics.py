@@ -5,7 +5,7 @@ import math
 import pytest
 import torch
 
-from vgpl.eval.metrics import mean_abs_acceleration_mm, mean_per_type, per_video_per_type
+from vgpl.metrics import mean_abs_acceleration_mm, mean_per_type, per_video_per_type
 
 
 def test_a_uniformly_accelerated_fall_reads_its_acceleration_per_frame_squared():

@@ -3,7 +3,7 @@ from __future__ import annotations
 import pytest
 import torch
 
-from vgpl.data.grounding import GroundingWindows
+from vgpl.data.inference_windows import InferenceWindows
 from vgpl.data.proposals import Proposals
 from vgpl.data.schema import DatasetError
 from vgpl.data.trajectories import Rollouts
@@ -23,7 +23,7 @@ def _data(n_frames=60, proposal_frames=60, env="rigid_fall"):
 def test_windows_need_proposals_only_as_far_as_the_last_observed_frame():
     """export_proposals writes start_frame + window_span + observed frames, not whole videos."""
     scene, rollouts, proposals = _data(proposal_frames=2 + 20 + 10)
-    ds = GroundingWindows(rollouts, proposals, scene, observed=10, horizon=5, start_frame=2, span=20)
+    ds = InferenceWindows(rollouts, proposals, scene, observed=10, horizon=5, start_frame=2, span=20)
     assert [s for _, s in ds.index[:21]] == list(range(2, 23)) and len(ds) == 2 * 21
     item = ds[len(ds) - 1]  # the last window: frames 22..31 observed, truth to frame 36
     assert item["proposals"].shape[0] == 10 and item["positions"].shape[0] == 15
@@ -32,14 +32,14 @@ def test_windows_need_proposals_only_as_far_as_the_last_observed_frame():
 
 def test_items_carry_the_true_rigidness_per_instance_for_the_logged_reading():
     scene, rollouts, proposals = _data(env="fluid_cube")
-    batch = torch.utils.data.default_collate([GroundingWindows(rollouts, proposals, scene, observed=10, horizon=5)[k] for k in (0, 7)])
+    batch = torch.utils.data.default_collate([InferenceWindows(rollouts, proposals, scene, observed=10, horizon=5)[k] for k in (0, 7)])
     assert batch["rigid"].tolist() == [[True, False]] * 2  # FluidCube: the cube, then the fluid
 
 
 def test_too_short_proposals_name_the_fix():
     scene, rollouts, proposals = _data(proposal_frames=31)
     with pytest.raises(DatasetError, match="cover the first 31 frames.*need 32.*re-export with task=export_proposals"):
-        GroundingWindows(rollouts, proposals, scene, observed=10, horizon=5, start_frame=2, span=20)
+        InferenceWindows(rollouts, proposals, scene, observed=10, horizon=5, start_frame=2, span=20)
 
 
 def test_export_covers_the_frames_the_inference_windows_read():
@@ -57,12 +57,12 @@ def test_export_covers_the_frames_the_inference_windows_read():
 
 def test_windows_for_training_without_trajectories_carry_the_future_frames_proposals():
     scene, rollouts, proposals = _data(proposal_frames=2 + 20 + 10 + 5)
-    ds = GroundingWindows(rollouts, proposals, scene, observed=10, horizon=5, start_frame=2, span=20, target_proposals=True)
+    ds = InferenceWindows(rollouts, proposals, scene, observed=10, horizon=5, start_frame=2, span=20, target_proposals=True)
     item = ds[len(ds) - 1]  # frames 22..31 observed, 32..36 rolled
     assert torch.equal(item["target_proposals"], proposals.positions[1, 22:37]) and torch.equal(item["proposals"], proposals.positions[1, 22:32])
-    assert "target_proposals" not in GroundingWindows(rollouts, proposals, scene, observed=10, horizon=5, start_frame=2, span=20)[0]
+    assert "target_proposals" not in InferenceWindows(rollouts, proposals, scene, observed=10, horizon=5, start_frame=2, span=20)[0]
     with pytest.raises(DatasetError, match="cover the first 37 frames.*observed \\+ 5 future \\(model.inference.net.rollout_target=proposals\\) need 38"):
-        GroundingWindows(rollouts, proposals, scene, observed=10, horizon=5, start_frame=2, span=21, target_proposals=True)
+        InferenceWindows(rollouts, proposals, scene, observed=10, horizon=5, start_frame=2, span=21, target_proposals=True)
 
 
 def test_truth_proposals_without_noise_are_the_recorded_particles_and_their_instances():
@@ -81,19 +81,19 @@ def test_truth_proposals_without_noise_are_the_recorded_particles_and_their_inst
 def test_validation_windows_can_be_the_evaluations_alone(val_span, starts):
     """val_window_span=0: one validation window per test video, at start_frame, where task=evaluate
     observes; null keeps the training span (every ``observed`` frames)."""
-    from vgpl.data.grounding import GroundingDataModule
+    from vgpl.data.inference_windows import InferenceDataModule
 
     scene, rollouts, proposals = _data()
-    dm = GroundingDataModule("unused", scene, observed=10, horizon=5, start_frame=2, span=20, val_span=val_span)
+    dm = InferenceDataModule("unused", scene, observed=10, horizon=5, start_frame=2, span=20, val_span=val_span)
     dm.test, dm.test_proposals = rollouts, proposals
     assert dm.val_dataloader().dataset.index == [(r, s) for r in range(2) for s in starts]
 
 
 def test_a_negative_validation_span_is_refused_by_name():
-    from vgpl.data.grounding import GroundingDataModule
+    from vgpl.data.inference_windows import InferenceDataModule
 
     with pytest.raises(ValueError, match="model.inference.val_window_span=-1: expected a frame count >= 0"):
-        GroundingDataModule("unused", _data()[0], val_span=-1)
+        InferenceDataModule("unused", _data()[0], val_span=-1)
 
 
 @pytest.mark.parametrize("env, start", [("rigid_fall", 0), ("fluid_cube", 0), ("mass_rope", 20)])
@@ -102,12 +102,12 @@ def test_the_standard_preset_validates_where_evaluate_observes(env, start):
     from hydra import compose, initialize_config_dir
 
     from tests.conftest import REPO
-    from vgpl.tasks.train_inference import grounding_datamodule
+    from vgpl.tasks.train_inference import inference_datamodule
 
     with initialize_config_dir(str(REPO / "conf"), version_base="1.3"):
         cfg = compose("config", overrides=[f"env={env}", "experiment=standard"])
     scene, rollouts, proposals = _data(n_frames=80, proposal_frames=80, env=env)
-    dm = grounding_datamodule(cfg, scene)
+    dm = inference_datamodule(cfg, scene)
     dm.test, dm.test_proposals = rollouts, proposals
     assert dm.val_dataloader().dataset.index == [(0, start), (1, start)]
     assert cfg.model.inference.net.separate_param_net  # the paper's two encoders
@@ -116,7 +116,7 @@ def test_the_standard_preset_validates_where_evaluate_observes(env, start):
 def test_proposals_of_other_rollouts_are_refused_by_file_name(tmp_path):
     """split_with_proposals (the DataModule's and the diagnostics' loader) pairs a split with its
     proposals only when their rollout_ids agree: the first R rollouts, or R consecutive later ones."""
-    from vgpl.data.grounding import proposals_path, split_with_proposals
+    from vgpl.data.inference_windows import proposals_path, split_with_proposals
     from vgpl.data.proposals import write_proposals
     from vgpl.data.shard import write_shard
     from vgpl.data.trajectories import load_split
@@ -166,20 +166,20 @@ def test_pooled_windows_read_the_slots_and_a_visual_file_without_them_is_refused
     """model.inference.window_pool=mean: each training window's proposals are pooled over the
     visual windows that end within it; a visual prior's file exported before slots were kept is
     refused by name, the recorded particles (no windows) are read as they are."""
-    from vgpl.data.grounding import GroundingDataModule, proposals_path
+    from vgpl.data.inference_windows import InferenceDataModule, proposals_path
     from vgpl.data.proposals import write_proposals
     from vgpl.data.window_pool import pool_windows
 
     scene, rollouts, proposals = _data(proposal_frames=32)
     proposals.slots = torch.rand(2, 32, 4, scene.n_particles, 3)
-    ds = GroundingWindows(rollouts, proposals, scene, observed=10, horizon=5, start_frame=2, span=20, window_pool="mean")
+    ds = InferenceWindows(rollouts, proposals, scene, observed=10, horizon=5, start_frame=2, span=20, window_pool="mean")
     r, s = ds.index[7]
     torch.testing.assert_close(ds[7]["proposals"], pool_windows(proposals.positions[r, s : s + 10], proposals.slots[r, s : s + 10], "mean"))
     assert not torch.allclose(ds[7]["proposals"], proposals.positions[r, s : s + 10])
     with pytest.raises(ValueError, match="model.inference.window_pool='first'"):
-        GroundingWindows(rollouts, proposals, scene, observed=10, horizon=5, window_pool="first")
+        InferenceWindows(rollouts, proposals, scene, observed=10, horizon=5, window_pool="first")
     for split in ("train", "test"):
         write_proposals(proposals_path(tmp_path, scene.name, split), Proposals(proposals.positions, proposals.logits, torch.arange(2), {"source": "visual"}))
-    dm = GroundingDataModule(str(tmp_path), scene, observed=10, horizon=5, window_pool="mean")
+    dm = InferenceDataModule(str(tmp_path), scene, observed=10, horizon=5, window_pool="mean")
     with pytest.raises(DatasetError, match=r"rigid_fall/proposals/train.h5: no 'slots' .*window_pool='mean' needs them; re-export"):
         dm.setup()

@@ -14,7 +14,8 @@ from vgpl.data.proposals import propose_windows, truth_proposals
 from vgpl.data.trajectories import Rollouts
 from vgpl.data.window_pool import check_window_pool, pool_windows
 from vgpl.eval.error_sources import RolloutInputs, error_sources
-from vgpl.eval.metrics import (
+from vgpl.eval.test_time_fit import TestTimeFit, refit_inferred
+from vgpl.metrics import (
     correct_rigidness_prob,
     mean_abs_acceleration_mm,
     mean_per_type,
@@ -24,8 +25,7 @@ from vgpl.eval.metrics import (
     position_mse_x1e4,
     rms_mm,
 )
-from vgpl.eval.rollout import future_mse, rollout
-from vgpl.eval.test_time_fit import TestTimeFit, refit_inferred
+from vgpl.models.rollout import future_mse, rollout
 
 
 @dataclass
