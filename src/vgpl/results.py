@@ -22,7 +22,7 @@ import statistics
 from collections import defaultdict
 from pathlib import Path
 
-from vgpl.eval.tables import markdown
+from vgpl.eval.tables import markdown, mean_sd
 
 BLOCK = re.compile(r"<!-- results:(?P<name>[\w/]+) -->\n(?P<body>.*?)<!-- /results -->", re.S)
 HORIZONS = ("1", "5", "10", "20")
@@ -60,12 +60,6 @@ def _command(row: dict) -> str:
     return " ".join(["python run.py", *preset, *rest, "seed=<s>"])
 
 
-def _mean_sd(values: list[float], unit: str = "", digits: int = 1) -> str:
-    if len(values) == 1:
-        return f"{values[0]:.{digits}f}{unit}"
-    return f"{statistics.mean(values):.{digits}f} ± {statistics.stdev(values):.{digits}f}{unit}"
-
-
 def _three(value: float) -> str:
     """Three significant figures, at most three decimals."""
     digits = max(0, min(3, 2 - int(f"{abs(value):e}".split("e")[1])))
@@ -86,9 +80,9 @@ def _runs_row(runs: list[dict], key: str) -> list[str]:
         future = " / ".join(_three(statistics.mean(m[f"future_mse_x1e4@{k}"] for m in full)) for k in HORIZONS)
     if all("refine_mse_x1e4_before" in m for m in full):
         refine = " -> ".join(_three(statistics.mean(m[f"refine_mse_x1e4_{w}"] for m in full)) for w in ("before", "after"))
-    cells = [f"`{_command(runs[0])}`, s = {', '.join(_seed(r) for r in runs)} [{key}]", _mean_sd(mae, "%"),
-             ", ".join(f"{v:.1f}" for v in mae), f"{midpoint:.1f}% ({_mean_sd(ratio, digits=2)})",
-             _mean_sd(no_rigid, "%") if len(no_rigid) == len(runs) else "", _mean_sd(baseline, "%") if len(baseline) == len(runs) else "",
+    cells = [f"`{_command(runs[0])}`, s = {', '.join(_seed(r) for r in runs)} [{key}]", mean_sd(mae, "%"),
+             ", ".join(f"{v:.1f}" for v in mae), f"{midpoint:.1f}% ({mean_sd(ratio, digits=2)})",
+             mean_sd(no_rigid, "%") if len(no_rigid) == len(runs) else "", mean_sd(baseline, "%") if len(baseline) == len(runs) else "",
              future, refine]
     return cells
 

@@ -61,6 +61,13 @@ def _method_rows(records: list[dict], keys: list[tuple[str, str]], cells) -> lis
 MIDPOINT_ROW = "range midpoint (constant guess)"
 
 
+def mean_sd(values: list[float], unit: str = "", digits: int = 1) -> str:
+    """"7.5 ± 0.7%": the mean ± sd of ``values`` (a single value alone), ``digits`` decimals."""
+    if len(values) == 1:
+        return f"{values[0]:.{digits}f}{unit}"
+    return f"{statistics.mean(values):.{digits}f} ± {statistics.stdev(values):.{digits}f}{unit}"
+
+
 def _mae_cell(record: dict | None, key: str = "param_mae_pct") -> str:
     """"7.0% (5.4)": the MAE and its std over videos; for pooled runs the mean ± sd over the runs
     and each run's, "7.2 ± 0.3% (runs 7.0, 7.4)"."""
@@ -69,7 +76,7 @@ def _mae_cell(record: dict | None, key: str = "param_mae_pct") -> str:
     if f"{key}_std" in record:
         return f"{record[key]:.1f}% ({record[f'{key}_std']:.1f})"
     runs = record["run_values"][key]
-    return f"{record[key]:.1f} ± {statistics.stdev(runs):.1f}% (runs {', '.join(f'{v:.1f}' for v in runs)})"
+    return f"{mean_sd(runs, '%')} (runs {', '.join(f'{v:.1f}' for v in runs)})"
 
 
 def table1_rows(records: list[dict]) -> tuple[list[str], list[list[str]]]:
@@ -95,7 +102,7 @@ def _future_cell(record: dict | None, key: str) -> str:
     if record is None or key not in record:
         return ""
     runs = record.get("run_values", {}).get(key)
-    return f"{record[key]:.3f}" + (f" ± {statistics.stdev(runs):.3f}" if runs and len(runs) > 1 else "")
+    return mean_sd(runs, digits=3) if runs else f"{record[key]:.3f}"
 
 
 def _mse(value, sign: str = "") -> str:
