@@ -59,6 +59,6 @@ def test_rigid_fall_simulated_turned_is_the_simulation_turned():
         assert original[-1, :, 1].min() < 0.05  # landed
         off_turned = (about_vertical(original[None], 1.0)[0] - turned).norm(dim=-1).amax(-1)  # [T]
         off_nudged = torch.stack([(original - n).norm(dim=-1).amax(-1) for n in nudged])  # [nudges, T]
-        assert off_turned[:12].max() < 1e-4  # the fall, before the first contact
+        assert off_turned[:8].max() < 1e-4  # the fall, before the first contact (the bottom cube falls freely for 8-12 frames)
         assert off_turned[-1] < 3 * off_nudged[:, -1].max()
     assert RigidFall.vertical_symmetry and not FluidCube.vertical_symmetry and not MassRope.vertical_symmetry

