@@ -153,6 +153,21 @@ def test_baseline_predicts_flow_better_than_zero_and_reports_a_parameter_error(t
     assert f"{dpn['param_mae_pct']:.1f}% ({dpn['param_mae_pct_std']:.1f})" in row  # Table 1 reports the record
 
 
+def test_the_motion_probe_is_fitted_in_training_as_evaluation_would_fit_it(tiny, tmp_path):
+    """train_baseline saves the flow statistics' ridge beside DensePhysNet's; evaluating a checkpoint
+    without it fits it from the training videos, and reads the same error."""
+    tmp, result = tiny
+    dpn = next(r for r in result["records"] if r["method"] == "densephysnet")
+    saved = Path(dpn["checkpoints"]["densephysnet"]).parent / "motion_ridge.pt"
+    assert saved.is_file()
+    moved = saved.rename(tmp_path / "motion_ridge.pt")
+    try:
+        refit = evaluate(config(tmp, "task=evaluate", f"paths.output_dir={tmp_path}/refit", "model=densephysnet"))
+    finally:
+        moved.rename(saved)
+    assert refit["flow_statistics_param_mae_pct"] == pytest.approx(dpn["flow_statistics_param_mae_pct"], rel=1e-5)
+
+
 def test_evaluation_from_checkpoints_alone_reproduces_the_numbers(tiny):
     tmp, result = tiny
     for record in result["records"][:2]:

@@ -14,6 +14,7 @@ import torch
 from omegaconf import DictConfig
 from torch.utils.data import DataLoader
 
+from vgpl.atomic_write import atomic_path
 from vgpl.checkpoint import load_stage, scene_of
 from vgpl.data.flow import flow_error
 from vgpl.data.flow_cache import CachedFlow, ensure_flow_cache
@@ -29,6 +30,8 @@ from vgpl.models.densephysnet import DensePhysNet
 from vgpl.tasks.stage import fit, setup_run, stage_checkpoint, stopping
 
 log = logging.getLogger(__name__)
+
+MOTION_RIDGE = "motion_ridge.pt"  # the flow statistics' ridge, beside the checkpoint and its ridge.pt
 
 
 class FlowDataModule(L.LightningDataModule):
@@ -107,9 +110,11 @@ def train_baseline(cfg: DictConfig) -> dict:
         return {"env": scene.name, "checkpoint": str(last)}
     # the linear decoder: one representation per training rollout, at the evaluation protocol's window
     probe = _windows(cfg, scene, train_videos, None, split="train")
-    x, y = features(model, probe)
-    ridge = Ridge.fit(x, y, spec.ridge_alpha)
-    torch.save(ridge.state_dict(), last.parent / "ridge.pt")
+    ridges = {"ridge.pt": Ridge.fit(*features(model, probe), spec.ridge_alpha),
+              MOTION_RIDGE: Ridge.fit(*window_flow_statistics(probe), spec.ridge_alpha)}  # the motion alone, for the report's probe
+    for name, ridge in ridges.items():
+        with atomic_path(last.parent / name) as tmp:
+            torch.save(ridge.state_dict(), tmp)
     result = {"env": scene.name, "checkpoint": str(last), **stopping(trainer), **flow_quality(model, test)}
     out = Path(cfg.paths.output_dir)
     out.mkdir(parents=True, exist_ok=True)
@@ -118,13 +123,19 @@ def train_baseline(cfg: DictConfig) -> dict:
     return result
 
 
-def motion_alone(cfg: DictConfig, scene, test: FlowWindows) -> torch.Tensor:
+def motion_alone(cfg: DictConfig, scene, test: FlowWindows, checkpoint: Path) -> torch.Tensor:
     """P [R, P] of the ``test`` windows as a ridge from their flow's statistics reads it
     (vgpl.eval.flow_statistics), fitted on the same training videos and evaluation window as
-    DensePhysNet's decoder: how much of its score the visible motion explains without a network."""
-    spec = cfg.model.densephysnet
-    train = _windows(cfg, scene, _videos(cfg, scene, "train", spec.get("max_rollouts")), None, split="train")
-    ridge = Ridge.fit(*window_flow_statistics(train), spec.ridge_alpha)
+    DensePhysNet's decoder: how much of its score the visible motion explains without a network.
+    The ridge task=train_baseline saved beside ``checkpoint``; for a checkpoint without one, fitted
+    here on the training videos."""
+    saved = checkpoint.parent / MOTION_RIDGE
+    if saved.is_file():
+        ridge = Ridge(**torch.load(saved))
+    else:
+        spec = cfg.model.densephysnet
+        train = _windows(cfg, scene, _videos(cfg, scene, "train", spec.get("max_rollouts")), None, split="train")
+        ridge = Ridge.fit(*window_flow_statistics(train), spec.ridge_alpha)
     return ridge.predict(window_flow_statistics(test)[0])
 
 
@@ -142,7 +153,7 @@ def evaluate_baseline(cfg: DictConfig) -> dict:
     x, y = features(model, test)
     low, high = torch.as_tensor(scene.param_low, dtype=torch.float32), torch.as_tensor(scene.param_high, dtype=torch.float32)
     err = param_error_pct(ridge.predict(x).clamp(low, high), y, test.r.param_low, test.r.param_high).mean(1)
-    motion = motion_alone(cfg, scene, test)
+    motion = motion_alone(cfg, scene, test, ckpt)
     motion_err = param_error_pct(motion.clamp(low, high), y, test.r.param_low, test.r.param_high).mean(1)
     record = {"env": scene.name, "method": "densephysnet", "ablation": "full", "n_test": len(test), "checkpoints": {"densephysnet": str(ckpt)},
               "param_mae_pct": float(err.mean()), "param_mae_pct_std": float(err.std()), "flow": test.flow,
