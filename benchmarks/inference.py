@@ -11,7 +11,7 @@ DynamicsPrior), backward and Adam, under bf16 autocast as the standard preset tr
 ``--repeat`` steps after two warm-ups. ``--preset`` times, instead of VARIANTS, the module as the
 prior's own run configured it (its saved config's ``model.inference``, every setting of its net: for
 a standard prior the standard preset's two encoders, both starts and 5-frame tail, on its window
-span), with ``--set key=value`` changing keys of that net (``--set tail_horizon=0``); ``--profile`` adds the operators that took
+span), with ``--set key=value`` changing keys of that net (``--set training.tail_horizon=0``); ``--profile`` adds the operators that took
 the most of those steps' CPU time (torch.profiler, self time) to its JSON line; its step_ms then
 includes the profiler's overhead, so time without it. ``--compile`` wraps the message-passing parts
 of the prior and of both encoders in ``torch.compile(dynamic=True)`` (edge counts change every step):
@@ -56,11 +56,13 @@ COMPILED = {  # --compile: the submodules of the prior and of each encoder that 
 
 def measure(dm: InferenceDataModule, dynamics: DynamicsPrior, scene, radius: float, batch: int, settings: dict, repeat: int,
             bf16: bool = True, profile: int = 0, compile_parts: str = "none") -> dict:
-    """The median step of the module built with ``settings`` (InferenceModule's keywords: a VARIANTS
-    row's, or a run's whole ``model.inference.net``); with ``profile`` > 0, also the ``profile``
+    """The median step of the module built with ``settings`` (InferenceModule's keywords but the scene: a VARIANTS
+    row's, or a run's whole ``model.inference.net`` and its horizon); with ``profile`` > 0, also the ``profile``
     operators of most self CPU time over the timed steps."""
     torch.manual_seed(0)
-    model = InferenceModule(scene.param_low.tolist(), scene.param_high.tolist(), scene.n_particles, scene.n_instances, radius, **settings)
+    scene_options = {"param_low": scene.param_low.tolist(), "param_high": scene.param_high.tolist(), "n_particles": scene.n_particles,
+                     "n_instances": scene.n_instances, "radius": radius, "instance_types": list(scene.instance_types)}
+    model = InferenceModule(scene_options, **settings)
     model.set_stats(dynamics)
     model.attach_dynamics(dynamics)
     owners = [m for m in (dynamics, model.encoder, model.param_encoder) if m is not None]
@@ -86,9 +88,10 @@ def measure(dm: InferenceDataModule, dynamics: DynamicsPrior, scene, radius: flo
     with torch.profiler.profile(activities=[torch.profiler.ProfilerActivity.CPU]) if profile else contextlib.nullcontext() as prof:
         times = [step() for _ in range(repeat)]
     ms = float(np.median(times)) * 1e3
-    hp = model.hparams
-    row = {"batch": batch, "width": hp.width, "separate_param_net": hp.separate_param_net, "max_neighbors": hp.max_neighbors,
-           "trajectory_start": hp.trajectory_start, "training_scheme": hp.training_scheme, "tail_horizon": hp.tail_horizon,
+    enc = model.encoder_options
+    row = {"batch": batch, "width": enc.width, "separate_param_net": enc.separate_param_net, "max_neighbors": enc.max_neighbors,
+           "trajectory_start": getattr(model.scheme, "start", "refined"), "training_scheme": model.scheme.name,
+           "tail_horizon": model.training_runs.tail_horizon,
            "compile": compile_parts, "precision": "bf16-mixed" if bf16 else "32-true",
            "step_ms": round(ms, 1), "ms_per_window": round(ms / batch, 1)}
     if profile:
@@ -105,7 +108,7 @@ def main() -> None:
     parser.add_argument("--repeat", type=int, default=8)
     parser.add_argument("--threads", type=int, default=2)
     parser.add_argument("--trajectory-start", default="refined", choices=["refined", "truth", "both"],
-                        help="model.inference.net.trajectory_start ('both' rolls two starts, as the standard preset)")
+                        help="model.inference.net.scheme.start of the joint scheme the variants train by ('both' rolls two starts)")
     parser.add_argument("--window-span", type=int, default=20, help="model.inference.window_span the proposals were exported for (quick: 8; --preset reads the run's)")
     parser.add_argument("--fp32", action="store_true", help="no bf16 autocast (what fast_precision picks on a CPU without bf16 units)")
     parser.add_argument("--variants", type=int, nargs="*", help="indices into VARIANTS to run (default: all)")
@@ -115,7 +118,7 @@ def main() -> None:
                         help="torch.compile(dynamic=True) these parts of the prior and the encoders (none: eager)")
     parser.add_argument("--profile", type=int, default=0, metavar="K", help="also record the K operators of most self CPU time (0: off)")
     parser.add_argument("--set", nargs="*", default=[], metavar="KEY=VALUE",
-                        help="with --preset: change these keys of the run's model.inference.net (e.g. tail_horizon=0 horizon=0)")
+                        help="with --preset: change these keys of the run's model.inference.net (e.g. training.tail_horizon=0 horizon=0)")
     args = parser.parse_args()
     if args.set and not args.preset:
         parser.error("--set changes the run's model.inference.net: it needs --preset")
@@ -125,19 +128,22 @@ def main() -> None:
     preset = cfg.model.inference
     net = None
     if args.preset:  # the run's module, every setting, with --set's changes
-        net = {key: value for key, value in OmegaConf.to_container(preset.net, resolve=True).items() if key != "_target_"}
+        net = OmegaConf.create({"horizon": preset.horizon, **{k: v for k, v in OmegaConf.to_container(preset.net, resolve=True).items() if k != "_target_"}})
         for item in args.set:
             key, _, value = item.partition("=")
-            if key not in net:
+            if OmegaConf.select(net, key, default=KeyError) is KeyError:
                 parser.error(f"--set {item}: model.inference.net has no key {key!r} (keys: {', '.join(sorted(net))})")
-            net[key] = yaml.safe_load(value)
+            OmegaConf.update(net, key, yaml.safe_load(value))
+        net = OmegaConf.to_container(net)
     horizon = net["horizon"] if net is not None else 5
     dm = InferenceDataModule(args.data, scene, 10, horizon, 2, cfg.env.get("start_frame", 0), 1, preset.window_span if args.preset else args.window_span)
     dm.setup()
     machine = describe()
     radius = float(cfg.env.graph_radius)
     runs = [(preset.batch_size, net)] if args.preset else [
-        (batch, {"separate_param_net": separate, "max_neighbors": neighbors, "trajectory_start": args.trajectory_start})
+        (batch, {"encoder": {"separate_param_net": separate, "max_neighbors": neighbors}, "horizon": 5,
+                 "scheme": {"_target_": "vgpl.models.training_scheme.JointScheme", "start": args.trajectory_start},
+                 "training": {"one_step_windows": 0, "refined_steps": None, "truth_steps": None}})
         for i, (batch, separate, neighbors) in enumerate(VARIANTS) if not args.variants or i in args.variants]
     for batch, settings in runs:
         row = measure(dm, dynamics, scene, radius, batch, settings, args.repeat, not args.fp32, args.profile, args.compile)

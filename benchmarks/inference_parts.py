@@ -36,6 +36,7 @@ from vgpl.data.trajectories import NormStats, Rollouts, ground_truth_grouping  #
 from vgpl.graph import edge_features, radius_graph  # noqa: E402
 from vgpl.models.dynamics_prior import DynamicsPrior  # noqa: E402
 from vgpl.models.rollout import rollout  # noqa: E402
+from vgpl.tasks.train_inference import inference_module  # noqa: E402
 
 CONF = Path(__file__).resolve().parents[1] / "conf"
 
@@ -56,7 +57,7 @@ def setup(env: str, width: int | None, batch: int, preset: str):
     cfg = preset_config(env, preset)
     scene = hydra.utils.instantiate(cfg.env.scene)
     spec = cfg.model.inference
-    t, k = spec.observed, spec.net.horizon
+    t, k = spec.observed, spec.horizon
     traj = scene.simulate([scene.sample(np.random.default_rng(s)) for s in range(batch)])
     pos, kinematic = traj.positions.float(), torch.as_tensor(scene.kinematic)
     rollouts = Rollouts(pos, traj.params.float(), traj.actions.float(), torch.as_tensor(scene.instance).long(), torch.as_tensor(scene.rigid),
@@ -65,9 +66,9 @@ def setup(env: str, width: int | None, batch: int, preset: str):
     prior = DynamicsPrior(scene.param_low.tolist(), scene.param_high.tolist(), scene.n_instances, cfg.env.graph_radius, **net)
     prior.set_stats(NormStats.from_rollouts(rollouts, kinematic))
     torch.manual_seed(0)
-    model = hydra.utils.instantiate(spec.net, _convert_="all", width=width or spec.net.width, param_low=scene.param_low.tolist(), param_high=scene.param_high.tolist(),
-                                    n_particles=scene.n_particles, n_instances=scene.n_instances, radius=cfg.env.graph_radius, rigidness=True,
-                                    instance_types=scene.instance_types)
+    if width is not None:
+        cfg.model.inference.net.encoder.width = width
+    model = inference_module(cfg, scene)
     model.set_stats(prior)
     model.attach_dynamics(prior)
     grouping = ground_truth_grouping(rollouts)
@@ -110,7 +111,7 @@ def parts(model, window, repeat: int) -> dict:
 
     sequence = torch.randn(b * n, t, code.shape[1], requires_grad=True)
     h, k = prior.hparams.history, model.hparams.horizon
-    starts = 2 if model.hparams.trajectory_start == "both" else 1
+    starts = 2 if getattr(model.scheme, "start", "refined") == "both" else 1
     start = window["positions"][:, :h].repeat(starts, 1, 1, 1).clone().requires_grad_(True)
     params = window["params"].repeat(starts, 1).clone().requires_grad_(True)
     rigid = torch.full((starts * b, grouping.shape[-1]), 0.5, requires_grad=True)

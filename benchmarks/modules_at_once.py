@@ -83,7 +83,7 @@ def main() -> None:
         precision = args.precision or module_precision(cfg)
         alone = steps_per_second(args.env, preset, args.threads, args.seconds, precision)
         pair = side_by_side(args.env, preset, args.threads, args.seconds, precision)
-        print(json.dumps({"benchmark": "modules_at_once", "env": args.env, "preset": preset, "width": cfg.model.inference.net.width,
+        print(json.dumps({"benchmark": "modules_at_once", "env": args.env, "preset": preset, "width": cfg.model.inference.net.encoder.width,
                           "prior_width": cfg.model.dynamics.net.width, "batch": 2, "precision": precision, "threads": args.threads, "seconds": args.seconds,
                           "steps_per_s": {"alone": round(alone, 2), "side_by_side": [round(r, 2) for r in pair]},
                           "gain": round(sum(pair) / alone, 3), "machine": describe()}), flush=True)

@@ -148,14 +148,30 @@ def mass_rope_scene_keys() -> set[str]:
     return scene("mass_rope") - scene("rigid_fall")
 
 
+PARTS = {"inference_scheme": "model.inference.net.scheme", "rollout_target": "model.inference.net.target",
+         "rigidness_estimator": "model.inference.net.rigidness_estimator"}  # the inference module's part groups and where they go
+
+
+def part_choice(key: str) -> str | None:
+    """The part group's choice (``inference_scheme=joint``) whose config has ``key``, for a key of a part."""
+    for group, package in PARTS.items():
+        if key.startswith(f"{package}."):
+            for path in sorted((REPO / "conf" / group).glob("*.yaml")):
+                if has_key(OmegaConf.load(path), key.removeprefix(f"{package}.")):
+                    return f"{group}={path.stem}"
+    return None
+
+
 def context_for(key: str) -> list[str]:
     """The overrides a prose key is meant with: the standard preset (or the paper's, for the keys
-    only it sets), and the task or launcher it belongs to."""
+    only it sets), and the task, launcher or part choice it belongs to."""
     context = ["experiment=standard"]
     if key.startswith("task.") and (task := task_defining(key)):
         context.append(f"task={task}")
     if key.startswith("hydra.launcher."):
         context.append("hydra/launcher=slurm")
+    if choice := part_choice(key):  # a key of one choice of a part group
+        context.append(choice)
     if key.startswith("env.scene.") and key.split(".")[2] in mass_rope_scene_keys():  # MassRope's scene alone has them
         context.append("env=mass_rope")
     return context

@@ -10,10 +10,10 @@ import torch
 
 import vgpl
 from tests.conftest import simulate
+from tests.models.inference_options import inference_module
 from vgpl.data.video_file import VideoFileError, read_actions, read_video
 from vgpl.grounder import Grounder, GroundingInputError
 from vgpl.models.dynamics_prior import DynamicsPrior
-from vgpl.models.inference import InferenceModule
 from vgpl.models.visual_prior import VisualPrior
 from vgpl.sim.envs import make_scene
 
@@ -24,7 +24,7 @@ def small_grounder(env: str, observed: int = 6) -> Grounder:
     torch.manual_seed(0)
     dynamics = DynamicsPrior(low, high, scene.n_instances, 0.08, width=8)
     visual = VisualPrior(scene.n_particles, scene.n_instances, channels=[4, 4, 4, 4], hidden=16)
-    inference = InferenceModule(low, high, scene.n_particles, scene.n_instances, 0.08, width=8, max_neighbors=8)
+    inference = inference_module(low, high, scene.n_particles, scene.n_instances, 0.08, width=8, max_neighbors=8)
     return Grounder(visual, inference, dynamics, scene, observed=observed)
 
 

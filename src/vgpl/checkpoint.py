@@ -38,6 +38,9 @@ def load_stage(path: str | Path, cls, env: str | None = None, n_particles: int |
         model = cls.load_from_checkpoint(str(path), map_location="cpu")
     except (RuntimeError, EOFError, KeyError, pickle.UnpicklingError) as error:  # torch's own messages do not name the file
         raise unreadable(path, cls, error) from error
+    except TypeError as error:  # hyperparameters this code's constructor does not take
+        raise CheckpointError(f"{path}: a {cls.__name__} checkpoint saved with constructor arguments this code's {cls.__name__} does not take "
+                              f"(an older version; {error}); retrain it with this version") from error
     return model.eval(), cfg
 
 

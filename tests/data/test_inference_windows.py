@@ -47,9 +47,9 @@ def test_export_covers_the_frames_the_inference_windows_read():
 
     from vgpl.tasks.train_visual import proposal_frames
 
-    cfg = OmegaConf.create({"env": {"start_frame": 2}, "model": {"inference": {"observed": 10, "window_span": 20}}})
+    cfg = OmegaConf.create({"env": {"start_frame": 2}, "model": {"inference": {"observed": 10, "horizon": 5, "window_span": 20}}})
     assert proposal_frames(cfg) == 32  # exactly what the windows above need
-    cfg.model.inference.net = {"horizon": 5, "rollout_target": "proposals"}
+    cfg.model.inference.net = {"target": {"_target_": "vgpl.models.rollout_target.ProposalsTarget"}}
     assert proposal_frames(cfg) == 37  # training without trajectories rolls against the 5 frames after them too
     cfg.model.inference.window_span = None
     assert proposal_frames(cfg) is None  # windows anywhere: whole videos
@@ -61,7 +61,7 @@ def test_windows_for_training_without_trajectories_carry_the_future_frames_propo
     item = ds[len(ds) - 1]  # frames 22..31 observed, 32..36 rolled
     assert torch.equal(item["target_proposals"], proposals.positions[1, 22:37]) and torch.equal(item["proposals"], proposals.positions[1, 22:32])
     assert "target_proposals" not in InferenceWindows(rollouts, proposals, scene, observed=10, horizon=5, start_frame=2, span=20)[0]
-    with pytest.raises(DatasetError, match="cover the first 37 frames.*observed \\+ 5 future \\(model.inference.net.rollout_target=proposals\\) need 38"):
+    with pytest.raises(DatasetError, match="cover the first 37 frames.*observed \\+ 5 future \\(rollout_target=proposals\\) need 38"):
         InferenceWindows(rollouts, proposals, scene, observed=10, horizon=5, start_frame=2, span=21, target_proposals=True)
 
 
@@ -110,7 +110,7 @@ def test_the_standard_preset_validates_where_evaluate_observes(env, start):
     dm = inference_datamodule(cfg, scene)
     dm.test, dm.test_proposals = rollouts, proposals
     assert dm.val_dataloader().dataset.index == [(0, start), (1, start)]
-    assert cfg.model.inference.net.separate_param_net  # the paper's two encoders
+    assert cfg.model.inference.net.encoder.separate_param_net  # the paper's two encoders
 
 
 def test_proposals_of_other_rollouts_are_refused_by_file_name(tmp_path):

@@ -6,10 +6,10 @@ import pytest
 import torch
 from omegaconf import OmegaConf
 
+from tests.models.inference_options import inference_module
 from vgpl.data.trajectories import Rollouts
 from vgpl.eval.protocol import evaluate_grounding
 from vgpl.models.dynamics_prior import DynamicsPrior
-from vgpl.models.inference import InferenceModule
 from vgpl.models.visual_prior import VisualPrior
 from vgpl.sim.envs import make_scene
 
@@ -20,7 +20,7 @@ def _setup():
     n, m, r, t = scene.n_particles, scene.n_instances, 5, 40
     dyn = DynamicsPrior(scene.param_low.tolist(), scene.param_high.tolist(), m, radius=0.08, width=16)
     visual = VisualPrior(n, m, channels=[4, 4, 4, 4], hidden=16, downsample=2)
-    inf = InferenceModule(scene.param_low.tolist(), scene.param_high.tolist(), n, m, radius=0.08, width=16)
+    inf = inference_module(scene.param_low.tolist(), scene.param_high.tolist(), n, m, radius=0.08, width=16)
     inf.set_stats(dyn)
     test = Rollouts(
         positions=torch.rand(r, t, n, 3) * 0.3, params=torch.full((r, 1), -10.0), actions=torch.zeros(r, t, 0),

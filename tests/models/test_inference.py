@@ -1,23 +1,23 @@
 from __future__ import annotations
 
+import inspect
 import math
 
-import hydra
-import lightning as L
+import lightning
 import pytest
 import torch
+from hydra import compose, initialize_config_dir
 from omegaconf import OmegaConf
-from torch.utils.data import DataLoader
 
 from tests.conftest import REPO
-from tests.models.learning_rate_callbacks import BatchClock, LearningRates
+from tests.models.inference_options import inference_module
 from vgpl.data.proposals import propose_videos
 from vgpl.data.vertical_symmetry import about_vertical
 from vgpl.graph import own_radius_graph
 from vgpl.models.dynamics_prior import DynamicsPrior
-from vgpl.models.inference import InferenceModule
+from vgpl.models.inference import Encoder, InferenceModule, built
+from vgpl.models.loss_runs import LossRuns
 from vgpl.models.rollout import rollout_runs as inference_rollout_runs
-from vgpl.models.step_learning_rate import annealed_fraction
 from vgpl.models.visual_prior import VisualPrior
 from vgpl.nn.rigid_start import rigid_start
 from vgpl.tasks.pipeline import ABLATIONS, ablation_config
@@ -35,9 +35,13 @@ def test_capped_radius_graph_keeps_the_nearest_neighbours():
         assert set(sources.tolist()) == set(dist[i].topk(5, largest=False).indices.tolist())
 
 
+JOINT = {"training_scheme": "joint", "one_step_windows": 0, "refined_steps": None, "truth_steps": None}  # every trajectory from the refined start
+
+
 def _modules(n=24, m=2, **kwargs):
+    """A tiny prior and module; the module trains by the joint scheme through the window and horizon unless ``kwargs`` say otherwise."""
     dyn = DynamicsPrior([-15.0], [-5.0], m, radius=0.3, width=16)
-    inf = InferenceModule([-15.0], [-5.0], n, m, radius=0.3, width=16, horizon=2, **kwargs)
+    inf = inference_module([-15.0], [-5.0], n, m, radius=0.3, width=16, horizon=2, **{**JOINT, **kwargs})
     inf.set_stats(dyn)
     inf.attach_dynamics(dyn)
     return dyn, inf
@@ -164,10 +168,8 @@ def test_a_run_longer_than_the_window_or_negative_is_refused():
 
 
 def test_the_paper_scheme_needs_the_papers_two_networks():
-    with pytest.raises(ValueError, match="training_scheme='paper'.*separate_param_net=true"):
+    with pytest.raises(ValueError, match="inference_scheme=paper .* needs encoder.separate_param_net=true"):
         _modules(training_scheme="paper", separate_param_net=False)
-    with pytest.raises(ValueError, match="training_scheme='fancy'"):
-        _modules(training_scheme="fancy")
 
 
 def test_the_tail_loss_rolls_from_the_last_refined_frames_where_the_evaluation_starts():
@@ -188,17 +190,15 @@ def test_the_tail_loss_rolls_from_the_last_refined_frames_where_the_evaluation_s
     heads = lambda module: [module.refine_head.lins[-1].weight, module.rigid_head.lins[-1].weight, module.param_head.lins[-1].weight]  # noqa: E731
     grads = torch.autograd.grad(losses["tail"], heads(inf))
     assert all(g.abs().sum() > 0 for g in grads)  # by default it trains the refinement, Q and P
-    for detach, trained in (({"tail_detach_params": True}, [True, True, False]), ({"tail_detach_rigidness": True}, [True, False, True]),
-                            ({"tail_detach_params": True, "tail_detach_rigidness": True}, [True, False, False])):
-        detached = InferenceModule(**{**inf.hparams, **detach})  # the same weights and prior
-        detached.load_state_dict(inf.state_dict())
-        detached.attach_dynamics(dyn)
-        d_losses = detached._losses(batch)
-        torch.testing.assert_close(d_losses["tail"], losses["tail"])  # the same loss ...
-        grads = torch.autograd.grad(d_losses["tail"], heads(detached), allow_unused=True)
-        assert [g is not None and bool(g.any()) for g in grads] == trained, detach  # ... with no gradient on what is detached
+    detached = InferenceModule(**{**inf.hparams, "training": {**inf.hparams.training, "tail_detach_rigidness": True}})  # the same weights and prior
+    detached.load_state_dict(inf.state_dict())
+    detached.attach_dynamics(dyn)
+    d_losses = detached._losses(batch)
+    torch.testing.assert_close(d_losses["tail"], losses["tail"])  # the same loss ...
+    grads = torch.autograd.grad(d_losses["tail"], heads(detached), allow_unused=True)
+    assert [g is not None and bool(g.any()) for g in grads] == [True, False, True]  # ... with no gradient on Q
     assert "tail" not in _modules()[1]._losses(batch)  # off by default (the paper)
-    with pytest.raises(ValueError, match="tail_horizon=3, expected 0 \\(off\\) to horizon=2"):
+    with pytest.raises(ValueError, match="tail_horizon=3, expected 0 \\(off\\) to model.inference.horizon=2"):
         _modules(tail_horizon=3)
 
 
@@ -263,12 +263,12 @@ def test_bernoulli_rigidness_learns_from_the_rollout_error_expected_over_each_la
     assert sum(g.abs().sum() for g in torch.autograd.grad(losses["rigidness"], q_weights)) > 0
     blend = _modules(trajectory_start=start)[1]._losses(batch)  # the paper's: Q is the prior's input, no separate loss
     assert "rigidness" not in blend
-    with pytest.raises(ValueError, match="rigidness_estimator='sampled'"):
-        _modules(rigidness_estimator="sampled")
+    with pytest.raises(ValueError, match="rigidness_estimator=bernoulli flips labels on one rollout length"):
+        _modules(rigidness_estimator="bernoulli", truth_steps=2)
 
 
 def test_unknown_trajectory_start_is_refused():
-    with pytest.raises(ValueError, match="trajectory_start='proposals'"):
+    with pytest.raises(ValueError, match=r"model.inference.net.scheme.start='proposals', expected 'refined'"):
         _modules(trajectory_start="proposals")
 
 
@@ -333,32 +333,6 @@ def test_sliding_window_keeps_the_last_frame_of_each_window():
     assert torch.allclose(pos[0, :4], first[0]) and torch.allclose(pos[1, 5], third[0, -1]) and torch.allclose(logits[1, 5], g[0, -1])
 
 
-@pytest.mark.parametrize("separate", [False, True])
-def test_param_lr_puts_exactly_the_parameter_pathway_in_its_own_group(separate):
-    _, inf = _modules(separate_param_net=separate, lr=1e-4, param_lr=3e-3)
-    rest, pathway = inf.configure_optimizers().param_groups
-    assert (rest["lr"], pathway["lr"]) == (1e-4, 3e-3)
-    named = {id(w): name for name, w in inf.named_parameters()}
-    in_pathway = {named[id(w)].split(".")[0] for w in pathway["params"]}
-    assert in_pathway == ({"param_head", "param_encoder"} if separate else {"param_head"})
-    assert len(rest["params"]) + len(pathway["params"]) == len(named)  # every weight once
-    # Adam's first step moves a weight with a gradient by its group's lr (a gradient well above Adam's eps)
-    optimiser, bias = inf.configure_optimizers(), inf.param_head.lins[-1].bias
-    before = {n: w.detach().clone() for n, w in inf.named_parameters()}
-    bias.sum().backward()
-    optimiser.step()
-    bias_name = f"param_head.lins.{len(inf.param_head.lins) - 1}.bias"
-    assert {n for n, w in inf.named_parameters() if not torch.equal(w, before[n])} == {bias_name}
-    assert (bias.detach() - before[bias_name]).abs().max().item() == pytest.approx(3e-3, rel=1e-3)
-
-
-def test_without_param_lr_one_group_and_a_bad_one_is_refused():
-    _, inf = _modules()
-    assert len(inf.configure_optimizers().param_groups) == 1
-    with pytest.raises(ValueError, match="param_lr=0"):
-        _modules(param_lr=0)
-
-
 def _gradient_norm(weights) -> float:
     return torch.nn.utils.get_total_norm([w.grad for w in weights]).item()
 
@@ -380,50 +354,35 @@ def test_norm_clipping_clips_each_network_on_its_own():
     assert _gradient_norm(pathway) == pytest.approx(1.0, rel=1e-5) and _gradient_norm(rest) == pytest.approx(1.0, rel=1e-5)
 
 
-def _fit_annealed(root, max_epochs: int = -1, clock_s: float | None = None) -> list[list[float]]:
-    """8 steps (max_steps 8) of batch 1 with the last 4 annealed, lr 1e-4 and param_lr 3e-3."""
-    _, inf = _modules(lr=1e-4, param_lr=3e-3, lr_anneal_steps=4)
-    batch = _batch(b=1)
-    samples = [{k: v[0] for k, v in batch.items()} for _ in range(8)]
-    rates = LearningRates()
-    trainer = L.Trainer(max_steps=8, max_epochs=max_epochs, limit_train_batches=4 if max_epochs > 0 else None, logger=False,
-                        enable_progress_bar=False, enable_model_summary=False, enable_checkpointing=False, default_root_dir=root,
-                        callbacks=[rates] + ([] if clock_s is None else [BatchClock(clock_s)]))
-    trainer.fit(inf, DataLoader(samples, batch_size=1))
-    return rates.rates
+def _composed(*overrides: str):
+    with initialize_config_dir(config_dir=str(REPO / "conf"), version_base="1.3"):
+        return compose("config", overrides=["experiment=none", *overrides])
 
 
-def test_the_anneal_scales_both_learning_rates_to_zero_together(tmp_path):
-    """model.inference.net.lr_anneal_steps: steps 0-4 at (lr, param_lr), then both times the same
-    half cosine (VisualPrior's schedule); under a clock of one second a batch and a 4 s budget the
-    last half of it anneals too (batches 2, 3 at x 1 and x 0.5), and the fit stops at zero."""
-    by_step = _fit_annealed(tmp_path / "steps")
-    expected = [annealed_fraction(s, 8, 4) for s in range(8)]
-    assert [r[0] for r in by_step] == pytest.approx([1e-4 * f for f in expected])
-    assert [r[1] for r in by_step] == pytest.approx([3e-3 * f for f in expected])
-    assert by_step[4] == pytest.approx([1e-4, 3e-3]) and by_step[7][1] == pytest.approx(3e-3 * 0.5 * (1 + math.cos(math.pi * 3 / 4)))
-    by_clock = _fit_annealed(tmp_path / "clock", clock_s=4.0)
-    assert [r for step in by_clock for r in step] == pytest.approx([1e-4, 3e-3] * 3 + [0.5e-4, 1.5e-3])
+def test_the_config_composes_the_module_from_its_parts():
+    """model.inference.net, as the config groups compose it, builds the module train_inference builds: each part
+    the group's class with the config's options; the option dataclasses' defaults are the config's."""
+    from vgpl.checkpoint import scene_of
+    from vgpl.models.rigidness_estimator import BernoulliRigidness, BlendRigidness
+    from vgpl.models.rollout_target import ProposalsTarget, TruthTarget
+    from vgpl.models.training_scheme import JointScheme, PaperScheme
+    from vgpl.tasks.train_inference import inference_module as from_config
 
-
-def test_an_inference_fit_cut_before_its_anneal_warns_with_its_own_key(tmp_path, caplog):
-    with caplog.at_level("WARNING", logger="vgpl.models.step_learning_rate"):
-        rates = _fit_annealed(tmp_path, max_epochs=1)
-    assert len(rates) == 4
-    assert "inference: stopped at step 4 of 8, before its learning-rate anneal began (model.inference.net.lr_anneal_steps=4)" in caplog.text
-    _, inf = _modules(lr_anneal_steps=4)
-    with pytest.raises(ValueError, match=r"model\.inference\.net\.lr_anneal_steps=4 needs a finite model\.inference\.trainer\.max_steps"):
-        annealed_fraction(0, -1, 4, stage=inf.anneal_stage)
-
-
-def test_the_config_key_reaches_the_module():
-    """model.inference.net.lr_anneal_steps is off by default (the paper's constant rate) and is
-    built into the module as train_inference instantiates it."""
-    net = OmegaConf.load(REPO / "conf/model/vgpl.yaml").inference.net
-    assert net.lr_anneal_steps == 0
-    net.lr_anneal_steps = 700
-    model = hydra.utils.instantiate(net, _convert_="all", param_low=[-15.0], param_high=[-5.0], n_particles=24, n_instances=2, radius=0.3)
-    assert model.hparams.lr_anneal_steps == 700 and model.anneal_stage == "inference"
+    cfg = _composed()
+    net = cfg.model.inference.net
+    model = from_config(cfg, scene_of(cfg))
+    assert isinstance(model.scheme, PaperScheme) and isinstance(model.estimator, BlendRigidness) and isinstance(model.target, TruthTarget)
+    assert model.target.refine_weight == net.target.refine_weight == 1.0 and model.hparams.horizon == cfg.model.inference.horizon
+    assert model.encoder_options == Encoder(**net.encoder) == Encoder() and model.training_runs == LossRuns(**net.training) == LossRuns()
+    assert model.configure_optimizers().param_groups[0]["lr"] == net.optimizer.lr
+    assert len(inspect.signature(InferenceModule).parameters) <= 10  # the parts, not their options
+    joint = from_config(_composed("inference_scheme=joint", "model.inference.net.scheme.start=both", "rollout_target=proposals",
+                                  "rigidness_estimator=bernoulli", "model.inference.net.training.refined_steps=null",
+                                  "model.inference.net.training.truth_steps=null"), scene_of(cfg))
+    assert isinstance(joint.scheme, JointScheme) and joint.scheme.start == "both"
+    assert isinstance(joint.target, ProposalsTarget) and isinstance(joint.estimator, BernoulliRigidness)
+    with pytest.raises(ValueError, match="inference_scheme=paper .* rollout_target=truth"):  # a combination that cannot work
+        from_config(_composed("rollout_target=proposals"), scene_of(cfg))
 
 
 def test_param_rotation_turns_only_what_the_parameter_encoder_sees_in_training():
@@ -446,7 +405,7 @@ def test_param_rotation_turns_only_what_the_parameter_encoder_sees_in_training()
     assert torch.allclose(first["params"], by_hand, atol=1e-6) and not torch.allclose(first["params"], plain(x, g, kin)["params"])
     assert torch.equal(first["refine"], plain(x, g, kin)["refine"]) and torch.equal(first["rigidness"], plain(x, g, kin)["rigidness"])
     assert not torch.allclose(turned(x, g, kin)["params"], first["params"])  # a new angle each call
-    with pytest.raises(ValueError, match="param_rotation=true .* needs separate_param_net=true"):
+    with pytest.raises(ValueError, match="param_rotation=true .* needs .*separate_param_net=true"):
         _modules(param_rotation=True, separate_param_net=False)
 
 
@@ -477,47 +436,9 @@ def test_proposal_noise_enters_the_training_step_only():
     torch.testing.assert_close(noisy._losses(batch)["loss"], plain._losses(batch)["loss"])
     torch.testing.assert_close(plain._losses(batch, noise=True)["loss"], plain._losses(batch)["loss"])
     assert not torch.allclose(noisy._losses(batch, noise=True)["loss"], noisy._losses(batch, noise=True)["loss"])
-    assert OmegaConf.load(REPO / "conf/model/vgpl.yaml").inference.net.proposal_noise == 0.0
+    assert OmegaConf.load(REPO / "conf/model/vgpl.yaml").inference.net.training.proposal_noise == 0.0
     with pytest.raises(ValueError, match=r"proposal_noise=-0\.001, expected a std in metres >= 0"):
         _modules(proposal_noise=-0.001)
-
-
-def test_blend_then_bernoulli_switches_at_its_step_and_the_checkpoint_keeps_it(tmp_path):
-    """bernoulli_from_step=k: the first k training steps are the blend's (no rigidness loss, the
-    prior sees Q), the rest bernoulli's (a rigidness loss, the prior sees the label); the checkpoint
-    records the estimator the fit ended with, so evaluating or resuming it sees bernoulli; a
-    checkpoint without that record keeps its hparams' estimator; k needs the blend."""
-
-    class RigidnessLoss(L.Callback):  # which steps had a rigidness loss
-        def __init__(self):
-            self.steps = []
-
-        def on_train_batch_end(self, trainer, module, outputs, batch, batch_idx):
-            self.steps.append((module.global_step - 1, "train/rigidness" in trainer.callback_metrics, module.estimator))
-
-    torch.manual_seed(0)
-    _, inf = _modules(bernoulli_from_step=3)
-    assert inf.estimator == "blend"
-    batch = _batch(b=1)
-    seen = RigidnessLoss()
-    trainer = L.Trainer(max_steps=5, logger=False, enable_progress_bar=False, enable_model_summary=False, enable_checkpointing=False,
-                        default_root_dir=tmp_path, callbacks=[seen])
-    trainer.fit(inf, DataLoader([{k: v[0] for k, v in batch.items()} for _ in range(5)], batch_size=1))
-    assert seen.steps == [(0, False, "blend"), (1, False, "blend"), (2, False, "blend"), (3, True, "bernoulli"), (4, True, "bernoulli")]
-    trainer.save_checkpoint(tmp_path / "switched.ckpt")
-    loaded = InferenceModule.load_from_checkpoint(tmp_path / "switched.ckpt", map_location="cpu")
-    assert loaded.estimator == "bernoulli" and loaded.hparams.rigidness_estimator == "blend"
-    prob = torch.tensor([[0.3, 0.8]])
-    assert torch.equal(loaded.prior_rigidness(prob), torch.tensor([[0.0, 1.0]]))
-    old = torch.load(tmp_path / "switched.ckpt", weights_only=False)
-    del old["rigidness_estimator"]
-    torch.save(old, tmp_path / "old.ckpt")
-    before = InferenceModule.load_from_checkpoint(tmp_path / "old.ckpt", map_location="cpu")
-    assert before.estimator == "blend" and torch.equal(before.prior_rigidness(prob), prob)
-    assert OmegaConf.load(REPO / "conf/model/vgpl.yaml").inference.net.bernoulli_from_step is None
-    for bad in ({"bernoulli_from_step": 3, "rigidness_estimator": "bernoulli"}, {"bernoulli_from_step": 0}):
-        with pytest.raises(ValueError, match=r"bernoulli_from_step=\d with rigidness_estimator='\w+', expected a step >= 1 with 'blend'"):
-            _modules(**bad)
 
 
 @pytest.mark.parametrize("start", ["refined", "both"])
@@ -545,10 +466,14 @@ def test_training_on_proposals_reads_no_trajectory_and_rolls_against_the_proposa
         assert float(twin_losses[name]) == pytest.approx(float(losses[name]), rel=1e-6)
 
 
-@pytest.mark.parametrize("setting", [{"refine_weight": 1.0}, {"param_weight": 1.0}, {"training_scheme": "paper"}])
-def test_training_on_proposals_refuses_any_term_that_reads_the_trajectories(setting):
-    with pytest.raises(ValueError, match="rollout_target='proposals' trains without the simulator's trajectories"):
-        _modules(rollout_target="proposals", **{"refine_weight": 0.0, **setting})
+def test_training_on_proposals_has_no_term_that_reads_the_trajectories():
+    """The proposals target has no refinement or parameter weight to set, and the paper's scheme (which
+    rolls with the true G, Q and P) is refused with it."""
+    for weight in ("refine_weight", "param_weight"):
+        with pytest.raises(Exception, match=weight):
+            built({"_target_": "vgpl.models.rollout_target.ProposalsTarget", weight: 1.0})
+    with pytest.raises(ValueError, match="inference_scheme=paper .* needs .* rollout_target=truth"):
+        _modules(rollout_target="proposals", refine_weight=0.0, training_scheme="paper")
 
 
 def test_rigid_fit_start_rolls_p_from_the_proposals_start_fitted_rigidly_by_the_modules_q(monkeypatch):
@@ -575,6 +500,20 @@ def test_rigid_fit_start_rolls_p_from_the_proposals_start_fitted_rigidly_by_the_
     starts = [run[0][:, :h].detach() for run in rolled]
     assert len(starts) == 2 and torch.allclose(starts[1], fitted, atol=1e-6) and torch.allclose(starts[0], refined, atol=1e-6)
     assert (fitted - batch["target_proposals"][:, :h]).abs()[:, :, 1:].max() > 0.05  # the fit moved the proposals
-    for bad in ({"rollout_target": "truth", "trajectory_start": "both"}, {"rollout_target": "proposals", "trajectory_start": "refined"}):
-        with pytest.raises(ValueError, match="rigid_fit_start=true fits the rigid instances of the proposals' start"):
-            _modules(refine_weight=0.0, rigid_fit_start=True, **bad)
+    with pytest.raises(ValueError, match="rigid_fit_start=true fits the rigid instances of the proposals' start"):
+        _modules(refine_weight=0.0, rigid_fit_start=True, rollout_target="proposals", trajectory_start="refined")
+
+
+def test_a_checkpoint_of_an_older_constructor_is_named_with_what_to_do(tmp_path):
+    """A checkpoint whose hyperparameters this InferenceModule does not take (the flat options it had
+    before its parts): one CheckpointError naming the file and asking for a retrain."""
+    from vgpl.checkpoint import CheckpointError, load_stage
+
+    _, inf = _modules()
+    path = tmp_path / "inference" / "last.ckpt"
+    path.parent.mkdir()
+    (path.parent / "config.yaml").write_text("stage_class: vgpl.models.inference.InferenceModule\n")
+    flat = {"param_low": [-15.0], "param_high": [-5.0], "n_particles": 24, "n_instances": 2, "radius": 0.3, "width": 16, "training_scheme": "joint"}
+    torch.save({"state_dict": inf.state_dict(), "hyper_parameters": flat, "pytorch-lightning_version": lightning.__version__}, path)
+    with pytest.raises(CheckpointError, match=f"{path}: a InferenceModule checkpoint saved with constructor arguments .* retrain it"):
+        load_stage(path, InferenceModule)

@@ -8,8 +8,8 @@ import torch
 
 import vgpl.nn.propagation as propagation
 from tests.conftest import simulate
+from tests.models.inference_options import inference_module
 from vgpl.models.dynamics_prior import DynamicsPrior
-from vgpl.models.inference import InferenceModule
 
 
 def _grads(module, loss):
@@ -66,8 +66,8 @@ def test_the_inference_modules_training_loss_and_gradients_are_the_exact_widths(
     def compute():
         torch.manual_seed(0)
         prior = DynamicsPrior(scene.param_low.tolist(), scene.param_high.tolist(), m, 0.08, width=150)
-        module = InferenceModule(scene.param_low.tolist(), scene.param_high.tolist(), n, m, 0.08, width=150, horizon=3,
-                                 trajectory_start="both", tail_horizon=3)
+        module = inference_module(scene.param_low.tolist(), scene.param_high.tolist(), n, m, 0.08, width=150, horizon=3,
+                                  training_scheme="joint", trajectory_start="both", tail_horizon=3, one_step_windows=0, refined_steps=None, truth_steps=None)
         module.set_stats(prior)
         module.attach_dynamics(prior)
         loss = module._losses(batch)["loss"]

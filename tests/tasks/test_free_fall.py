@@ -14,7 +14,7 @@ from vgpl.tasks.free_fall import free_fall_gravity
 from vgpl.tasks.generate import generate
 from vgpl.tasks.train_visual import export_proposals
 
-WINDOW = ["model.inference.window_span=2", "model.inference.observed=10", "model.inference.net.horizon=1"]  # proposals of 12 frames
+WINDOW = ["model.inference.window_span=2", "model.inference.observed=10", "model.inference.horizon=1"]  # proposals of 12 frames
 
 
 def config(tmp: Path, *overrides):

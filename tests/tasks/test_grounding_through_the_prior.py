@@ -24,11 +24,11 @@ TINY = [
     "data.batch_size=24", "data.render=false", "data.progress=false", "trainer.precision=32-true", "trainer.enable_progress_bar=false",
     "trainer.limit_val_batches=2", "model.dynamics.net.width=48", "model.dynamics.batch_size=16", "model.dynamics.trainer.max_steps=3000",
     "model.dynamics.net.noise_free_steps=750", "model.dynamics.trainer.val_check_interval=1000", "model.dynamics.trainer.max_time=null",
-    "model.inference.trainer.max_time=null", "model.inference.batch_size=4", "model.inference.net.width=32", "model.inference.window_stride=1",
-    "model.inference.net.max_neighbors=12", "model.inference.trainer.max_steps=600", "model.inference.trainer.val_check_interval=300",
+    "model.inference.trainer.max_time=null", "model.inference.batch_size=4", "model.inference.net.encoder.width=32", "model.inference.window_stride=1",
+    "model.inference.net.encoder.max_neighbors=12", "model.inference.trainer.max_steps=600", "model.inference.trainer.val_check_interval=300",
     "model.inference.ema.decay=0.99", "eval.n_steps=10", "eval.max_observed=12",
     # the paper's training of the module: no loss on P, each network rolled with the truth of the other's outputs
-    "model.inference.net.param_weight=0", "model.inference.net.training_scheme=paper",
+    "model.inference.net.target.param_weight=0", "inference_scheme=paper",
 ]
 
 

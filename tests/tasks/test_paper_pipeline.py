@@ -26,7 +26,7 @@ SIZES = {  # key -> tiny value: what a CPU minute affords; nothing here changes 
     "trainer.accelerator": "cpu", "trainer.limit_train_batches": 4, "trainer.limit_val_batches": 1, "trainer.max_epochs": 1,
     "trainer.enable_progress_bar": False,
     "model.visual.batch_size": 4, "model.visual.trainer.max_steps": 4,
-    "model.inference.trainer.max_epochs": 1, "model.inference.net.max_neighbors": 16,
+    "model.inference.trainer.max_epochs": 1, "model.inference.net.encoder.max_neighbors": 16,
     "eval.max_observed": 12,
 }
 
@@ -77,4 +77,5 @@ def test_the_checkpoints_carry_the_papers_recipe(run):
     assert (dynamics["history"], dynamics["width"], dynamics["rigid_head"], dynamics["lr"]) == (4, 150, "pooled", 1e-5)
     assert torch.load(ckpt / "dynamics_unconstrained/last.ckpt", map_location="cpu", weights_only=False)["hyper_parameters"]["rigid_head"] == "none"
     inference = torch.load(ckpt / "inference/last.ckpt", map_location="cpu", weights_only=False)["hyper_parameters"]
-    assert (inference["training_scheme"], inference["width"], inference["truth_steps"], inference["refined_steps"]) == ("paper", 150, 2, 0)
+    assert inference["scheme"]["_target_"] == "vgpl.models.training_scheme.PaperScheme"
+    assert (inference["encoder"]["width"], inference["training"]["truth_steps"], inference["training"]["refined_steps"]) == (150, 2, 0)

@@ -29,17 +29,17 @@ TINY = [
     "model.dynamics.net.width=48", "model.dynamics.batch_size=16", "model.dynamics.trainer.max_steps=250", "model.dynamics.trainer.val_check_interval=125",
     "model.visual.net.channels=[8,16,16,32]", "model.visual.net.hidden=256", "model.visual.trainer.max_steps=300", "model.visual.trainer.val_check_interval=150",
     "model.dynamics.trainer.max_time=null", "model.visual.trainer.max_time=null", "model.inference.trainer.max_time=null",  # steps, not the clock
-    "model.inference.batch_size=4", "model.inference.net.width=32", "model.inference.window_stride=1", "model.inference.net.max_neighbors=12", "model.inference.trainer.max_steps=600", "model.inference.trainer.val_check_interval=300",
+    "model.inference.batch_size=4", "model.inference.net.encoder.width=32", "model.inference.window_stride=1", "model.inference.net.encoder.max_neighbors=12", "model.inference.trainer.max_steps=600", "model.inference.trainer.val_check_interval=300",
     # a 250-step prior cannot ground P (tests/tasks/test_grounding_through_the_prior.py grounds it through a 3,000-step one),
     # so this check of the pipeline's mechanics trains the module with a supervised L1 on P, jointly, over the window and
     # 5 frames past it, and its prior without the quick preset's weight averaging and noise-free finish
-    "model.inference.net.param_weight=10", "model.inference.net.training_scheme=joint", "model.inference.net.horizon=5",
-    "model.inference.net.one_step_windows=0", "model.inference.net.refined_steps=null", "model.inference.net.truth_steps=null",
+    "model.inference.net.target.param_weight=10", "inference_scheme=joint", "model.inference.horizon=5",
+    "model.inference.net.training.one_step_windows=0", "model.inference.net.training.refined_steps=null", "model.inference.net.training.truth_steps=null",
     "model.dynamics.ema.decay=null", "model.dynamics.net.noise_free_steps=0",
     # refinement's direct L1 weighted as P's (param_weight 10): at the default 1 the 600 steps left
     # dX near zero and the refined MSE x 1e4 a coin flip about the proposals' 13.98 (12.92 to 14.07 in six draws, two above);
     # at 10, 12.78 to 12.94 in four
-    "model.inference.net.refine_weight=10",
+    "model.inference.net.target.refine_weight=10",
     # the weights' moving average (as the quick preset's 0.99): the validation gravity swings by up to 10 points between
     # checkpoints 300 steps apart at this scale, and one CI draw ended 25.9% against the midpoint's 26.3%; with it
     # seeds 0 and 5 read 20.5% and 18.4% (refined MSE 12.86, 12.64), its CI run 21.4% (12.68)
@@ -269,7 +269,7 @@ def test_inference_init_from_starts_a_fine_tune_from_the_checkpoints_weights(tin
 
     tmp, _ = tiny
     stages = tmp / "checkpoints/quick/rigid_fall"
-    tuned = train_inference(config(tmp, "task=train_inference", f"model.inference.init_from={stages}/inference/last.ckpt", "model.inference.net.lr=0",
+    tuned = train_inference(config(tmp, "task=train_inference", f"model.inference.init_from={stages}/inference/last.ckpt", "model.inference.net.optimizer.lr=0",
                                    f"ckpt.dynamics={stages}/dynamics/last.ckpt", f"paths.ckpt_dir={tmp_path}/tuned", "model.inference.trainer.max_steps=2",
                                    f"paths.output_dir={tmp_path}/run"))
     source = torch.load(stages / "inference/last.ckpt", weights_only=False)["state_dict"]
@@ -277,7 +277,7 @@ def test_inference_init_from_starts_a_fine_tune_from_the_checkpoints_weights(tin
     assert tuned["steps"] == 2 and source.keys() == after.keys()
     assert all(torch.equal(source[k], after[k]) for k in source)
     with pytest.raises(CheckpointError, match="model.inference.init_from has other layer shapes than model.inference.net"):
-        train_inference(config(tmp, "task=train_inference", f"model.inference.init_from={stages}/inference/last.ckpt", "model.inference.net.width=16",
+        train_inference(config(tmp, "task=train_inference", f"model.inference.init_from={stages}/inference/last.ckpt", "model.inference.net.encoder.width=16",
                                f"ckpt.dynamics={stages}/dynamics/last.ckpt", f"paths.ckpt_dir={tmp_path}/bad", f"paths.output_dir={tmp_path}/run"))
 
 

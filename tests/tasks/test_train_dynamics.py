@@ -237,7 +237,7 @@ def test_truth_proposals_need_no_video_or_visual_prior_and_the_inference_module_
         export_proposals(config(tmp, "task=export_proposals", "task.source=video"))
     with pytest.raises(ValueError, match="task.noise_std=0.01: .*with task.source=truth"):
         export_proposals(config(tmp, "task=export_proposals", "task.noise_std=0.01"))  # the visual prior's proposals get no noise
-    window = ["model.inference.window_span=5", "model.inference.observed=6", "model.inference.net.horizon=1"]  # short windows: a fast test
+    window = ["model.inference.window_span=5", "model.inference.observed=6", "model.inference.horizon=1"]  # short windows: a fast test
     out = export_proposals(config(tmp, "task=export_proposals", "task.source=truth", "task.noise_std=0.01", *window))
     noises = []
     for split in ("train", "test"):
@@ -250,7 +250,7 @@ def test_truth_proposals_need_no_video_or_visual_prior_and_the_inference_module_
         assert p.attrs["source"] == "truth" and p.attrs["noise_std"] == 0.01
         noises.append(noise[:1])
     assert not torch.allclose(noises[0], noises[1])  # each split draws its own noise
-    result = train_inference(config(tmp, "task=train_inference", *window, "model.inference.net.width=16", "trainer.limit_train_batches=1",
+    result = train_inference(config(tmp, "task=train_inference", *window, "model.inference.net.encoder.width=16", "trainer.limit_train_batches=1",
                                     "trainer.limit_val_batches=1"))
     assert result["proposals_source"] == "truth" and result["proposals_noise_std"] == 0.01 and result["steps"] == 1
     assert 0 <= result["val/param_mae_pct"] <= 100
@@ -546,8 +546,8 @@ def test_init_reset_puts_a_fresh_head_on_the_checkpoints_trunk(trained):
 def test_param_rotation_is_refused_on_an_env_without_the_symmetry(tmp_path):
     """FluidCube's container is not symmetric about the vertical axis: the option is refused by
     name before any checkpoint or data is read."""
-    with pytest.raises(ValueError, match=r"model\.inference\.net\.param_rotation=true: env=fluid_cube is not symmetric"):
-        train_inference(config(tmp_path, "task=train_inference", "env=fluid_cube", "model.inference.net.param_rotation=true"))
+    with pytest.raises(ValueError, match=r"model\.inference\.net\.encoder\.param_rotation=true: env=fluid_cube is not symmetric"):
+        train_inference(config(tmp_path, "task=train_inference", "env=fluid_cube", "model.inference.net.encoder.param_rotation=true"))
     assert not (tmp_path / "ckpt").exists()
 
 
@@ -582,7 +582,7 @@ def test_the_unconstrained_prior_trains_into_its_own_folder_and_no_rigidness_unc
     assert Path(rigid["checkpoint"]).read_bytes() == before
     prior, _ = load_dynamics(free["checkpoint"])
     assert prior.rigid_head is None and prior.hparams.rigid_head == "none"
-    window = ["model.inference.window_span=5", "model.inference.observed=6", "model.inference.net.horizon=1", "model.inference.net.width=16",
+    window = ["model.inference.window_span=5", "model.inference.observed=6", "model.inference.horizon=1", "model.inference.net.encoder.width=16",
               "trainer.limit_train_batches=1", "trainer.limit_val_batches=1"]
     export_proposals(config(tmp, "task=export_proposals", "task.source=truth", *window))
     module = train_inference(config(tmp, "task=train_inference", "ablation=no_rigidness_unconstrained", *window))

@@ -60,7 +60,7 @@ class InferenceWindows(Dataset):
             last = min(last, start_frame + span)
         needed = last + observed + (horizon if target_proposals else 0)
         if proposals.positions.shape[1] < needed:
-            future = f" + {horizon} future (model.inference.net.rollout_target=proposals)" if target_proposals else ""
+            future = f" + {horizon} future (rollout_target=proposals)" if target_proposals else ""
             raise DatasetError(
                 f"proposals cover the first {proposals.positions.shape[1]} frames, windows up to frame {last} + {observed} observed{future} need "
                 f"{needed} (exported for a smaller model.inference.window_span, or without rollout_target=proposals?); re-export with task=export_proposals")

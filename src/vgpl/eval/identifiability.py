@@ -36,6 +36,16 @@ def rollout_l1_per_scene(model, positions, grouping, rigidness, params, planes, 
     return ((pred - positions[:, h : h + n_steps]) / model.disp_std).abs()[:, :, ~kinematic].mean((1, 2, 3))
 
 
+def snapped_to_grid(truth: torch.Tensor, values: torch.Tensor, offsets: torch.Tensor | None) -> torch.Tensor:
+    """truth [B, P] normalised -> the nearest of the grid ``values`` [G], then, with ``offsets`` [R], the
+    nearest of the refined values around it: what a perfect prior's argmin reads."""
+    nearest = values[(truth.unsqueeze(-1) - values).abs().argmin(-1)]  # [B, P]
+    if offsets is None:
+        return nearest
+    around = (nearest.unsqueeze(-1) + offsets).clamp(-1.0, 1.0)  # [B, P, R]
+    return around.gather(-1, (truth.unsqueeze(-1) - around).abs().argmin(-1, keepdim=True))[..., 0]
+
+
 def oracle_param_sweep(model, positions, grouping, rigidness, params, planes, kinematic, n_steps: int, grid: int = 9,
                        refine: int = 0, chunk: int = 16) -> dict:
     """Sweep each parameter over ``grid`` evenly spaced values of its range, then, with ``refine`` > 1,
@@ -86,10 +96,7 @@ def oracle_param_sweep(model, positions, grouping, rigidness, params, planes, ki
                 coarse, _ = best(j, (coarse[:, None] + offsets).clamp(-1.0, 1.0))
             oracle.append(coarse)
     oracle = torch.stack(oracle, 1)  # [B, P]
-    nearest = values[(truth.unsqueeze(-1) - values).abs().argmin(-1)]  # [B, P]
-    if refine:
-        around = (nearest.unsqueeze(-1) + offsets).clamp(-1.0, 1.0)  # [B, P, refine]
-        nearest = around.gather(-1, (truth.unsqueeze(-1) - around).abs().argmin(-1, keepdim=True))[..., 0]
+    nearest = snapped_to_grid(truth, values, offsets)
     return {
         "oracle_params": model.to_physical(oracle),
         "oracle_param_mae_pct": ((oracle - truth).abs() * 50.0).mean(0),

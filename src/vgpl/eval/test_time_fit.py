@@ -86,7 +86,7 @@ def refit_inferred(out: dict, inference, dynamics, positions, planes, kinematic,
     actuated particles placed (``fit_to_own_frames``). Q is fitted when ``fit.rigidness`` and
     ``rigidness`` (the ablation infers it) and the module's estimator is ``blend``; ``progress``
     shows a bar over the videos. Returns ``fit_to_own_frames``' result."""
-    fit_q = bool(fit.rigidness and rigidness and inference.estimator == "blend")
+    fit_q = bool(fit.rigidness and rigidness and inference.estimator.name == "blend")
     fitted = fit_to_own_frames(dynamics, positions, out["grouping"], out["rigidness_prob"], out["params_normalised"], planes, kinematic,
                                TestTimeFit(fit.steps, fit.lr, fit_q, fit.rigid_start), inference.to_physical, chunk, progress)
     out["params_normalised"], out["params"] = fitted["params_normalised"], inference.to_physical(fitted["params_normalised"])

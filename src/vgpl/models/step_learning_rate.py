@@ -3,7 +3,7 @@
 A fit cut by trainer.max_time, or resumed from a checkpoint that had no scheduler, keeps its
 global step but not a scheduler's own counter; a rate computed from the global step is the same
 in an interrupted fit as in an uninterrupted one (DynamicsPrior's per-epoch decay, the final
-anneal of VisualPrior and InferenceModule, ``AnnealedLearningRate``). The anneal also reads the
+anneal of VisualPrior, ``AnnealedLearningRate``). The anneal also reads the
 training clock (Lightning's Timer, which a resume restores), so a fit stopped by
 trainer.max_time ends annealed too."""
 
@@ -40,7 +40,7 @@ def annealed_fraction(step: int, max_steps: int, anneal_steps: int, elapsed_s: f
     anneal also spans the same share ``anneal_steps / max_steps`` of the budget's end, and the rate
     follows whichever of the two schedules is further on: a fit the clock stops before max_steps
     still ends at zero, and one that reaches max_steps first anneals by step as before. ``stage``
-    (visual, inference) and ``option`` (the net's key that asked for the schedule) name the config
+    (visual) and ``option`` (the net's key that asked for the schedule) name the config
     key in the error for a fit without max_steps."""
     if max_steps <= 0:
         raise ValueError(f"model.{stage}.net.{option}={anneal_steps} needs a finite model.{stage}.trainer.max_steps, "

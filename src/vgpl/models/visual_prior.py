@@ -82,16 +82,7 @@ class VisualPrior(AnnealedLearningRate, L.LightningModule):
             blocks.append(conv_block(c_in, c))
             c_in = c
         if architecture == "spatial":
-            self.register_buffer("intrinsics", torch.eye(3))
-            self.register_buffer("world_to_camera", torch.eye(4))
-            self.register_buffer("image_size", torch.tensor([120, 160]))
-            self.trunk = nn.ModuleList(blocks).to(memory_format=torch.channels_last)
-            self.slots = SlotHeatmaps(channels[head_level], channels[head_level + 1], head_width, frames * n_particles, n_instances)
-            if rigid_pose:
-                self.poses = SlotHeatmaps(channels[head_level], channels[head_level + 1], head_width, frames * n_instances, 4)
-                with torch.no_grad():  # start at the identity rotation
-                    self.poses.readout.weight.mul_(0.01)
-                    self.poses.readout.bias.copy_(torch.tensor([1.0, 0.0, 0.0, 0.0]))
+            self._build_spatial(blocks)
             return
         # channels-last: the layout oneDNN's and cuDNN's fast convolutions use (this CPU: 1.42x a step in fp32, 1.23x
         # in bf16; benchmarks/results_visual.jsonl). Module.to keeps it; a checkpoint saved either way loads into it.
@@ -99,6 +90,22 @@ class VisualPrior(AnnealedLearningRate, L.LightningModule):
         features = c_in * pooled[0] * pooled[1]
         self.position_head = nn.Sequential(nn.Linear(features, hidden), nn.ReLU(inplace=True), nn.Linear(hidden, frames * n_particles * 3))
         self.group_head = nn.Sequential(nn.Linear(features, hidden), nn.ReLU(inplace=True), nn.Linear(hidden, frames * n_particles * n_instances))
+
+    def _build_spatial(self, blocks: list[nn.Module]) -> None:
+        """The spatial architecture's trunk, its per-slot heatmaps over ``head_level``'s map, the camera's
+        buffers (``set_camera``) and, with ``rigid_pose``, one pose slot per rigid instance and frame."""
+        hp = self.hparams
+        self.register_buffer("intrinsics", torch.eye(3))
+        self.register_buffer("world_to_camera", torch.eye(4))
+        self.register_buffer("image_size", torch.tensor([120, 160]))
+        self.trunk = nn.ModuleList(blocks).to(memory_format=torch.channels_last)
+        level, above = hp.channels[hp.head_level], hp.channels[hp.head_level + 1]
+        self.slots = SlotHeatmaps(level, above, hp.head_width, hp.frames * hp.n_particles, hp.n_instances)
+        if hp.rigid_pose:
+            self.poses = SlotHeatmaps(level, above, hp.head_width, hp.frames * hp.n_instances, 4)
+            with torch.no_grad():  # start at the identity rotation
+                self.poses.readout.weight.mul_(0.01)
+                self.poses.readout.bias.copy_(torch.tensor([1.0, 0.0, 0.0, 0.0]))
 
     def set_stats(self, stats) -> None:
         self.pos_mean.copy_(stats.pos_mean)

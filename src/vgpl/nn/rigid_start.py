@@ -2,7 +2,7 @@
 rolls from them reads a rigid body's motion instead of the frame-to-frame noise of its particles.
 
 Used by the oracle sweep from the proposals (``task.param_sweep_history=proposals_rigid``) and by the
-inference module's rollout from the proposals' start (``model.inference.net.rigid_fit_start``).
+inference module's rollout from the proposals' start (``model.inference.net.target.rigid_fit_start``).
 """
 
 from __future__ import annotations

@@ -78,7 +78,7 @@ def evaluate(cfg: DictConfig) -> dict:
                                         "eval.proposals", "eval.proposals_noise_std", exported=True)
     scene = scene_of(cfg)
     env, n = scene.name, scene.n_particles
-    truth, by_video = source == "truth", source == "visual"
+    by_video = source == "visual"
     paths = {"dynamics": stage_checkpoint(cfg, ablation_prior(cfg.ablation)), "visual": stage_checkpoint(cfg, "visual") if by_video else None,
              "proposals": proposals_path(cfg.data.root, env, "test") if source == "exported" else None, "inference": inference_checkpoint(cfg)}
     dynamics, _ = load_stage(paths["dynamics"], DynamicsPrior, env=env, n_particles=n)
@@ -90,14 +90,8 @@ def evaluate(cfg: DictConfig) -> dict:
     if test.positions.shape[2] != n:
         raise ValueError(f"{cfg.data.root}/{env}/test: {test.positions.shape[2]} particles, the checkpoints expect {n}")
     observed = cfg.model.inference.observed if cfg.eval.get("observed") is None else cfg.eval.observed
-    exported = None
-    if paths["proposals"] is not None:
-        start = cfg.env.get("start_frame", 0)
-        frames = start + proposed_frames(observed, cfg.eval.get("max_observed", 20), test.positions.shape[1], start)
-        prop = exported_proposals(paths["proposals"], test.rollout_ids, frames, window_pool)
-        if prop.positions.shape[2] != n:
-            raise ValueError(f"{paths['proposals']}: proposals of {prop.positions.shape[2]} particles, the checkpoints expect {n}")
-        exported = (prop.positions, prop.logits, prop.slots)
+    prop = None if paths["proposals"] is None else exported_test_proposals(cfg, paths["proposals"], test, observed, window_pool, n)
+    exported = None if prop is None else (prop.positions, prop.logits, prop.slots)
     measured_on = curve_fingerprint(cfg, paths, source, noise_std, int(test.positions.shape[0]), observed, window_pool) if cfg.ablation.rigidness else None
     reused = cfg.eval.get("rigidness_curve_from") if cfg.ablation.rigidness else None
     result = evaluate_grounding(dynamics, visual, inference, scene, test, cfg.ablation, observed, cfg.eval.n_steps,
@@ -115,34 +109,59 @@ def evaluate(cfg: DictConfig) -> dict:
         record["rigidness_curve_from"] = reused  # None: measured by this evaluation
     if result.sources:
         record["error_sources"] = result.sources
-    last = cfg.eval.n_steps  # a long-horizon miss traced to videos and to what was inferred for them
     names = list(scene.param_names)
-    record[f"breakdown@{last}"] = error_breakdown(result.prediction, result.truth, torch.as_tensor(scene.instance), torch.cat([test.params, result.params], 1),
-                                                  last, names + [f"inferred_{n}" for n in names])
-    record[PER_VIDEO_PARAM] = per_video_map(test.rollout_ids, result.param_error)  # paired by task=compare
-    for name, values in result.rigidness_correct.items():
-        record[PER_VIDEO_RIGIDNESS.format(observed, name)] = per_video_map(test.rollout_ids, values)
-    errors = {}  # T+k -> [R], each video's error at Table 2's horizons (and the last), for params.csv and the paired tables
-    for step in sorted({k for k in HORIZONS if k <= last} | {last}):
-        errors[step] = rollout_mse_x1e4(result.prediction, result.truth, step)
-        record[PER_VIDEO.format(step)] = per_video_map(test.rollout_ids, errors[step])
+    errors = add_per_video(record, result, test, scene, observed, cfg.eval.n_steps)
     out = Path(cfg.paths.output_dir)
     out.mkdir(parents=True, exist_ok=True)
     (out / "metrics.json").write_text(json.dumps(record, indent=1))
     (out / "params.csv").write_text(csv_text(*param_rows(names, test.params, result.params, test.rollout_ids, {FUTURE.format(k): e for k, e in errors.items()})))
-    notes = (f"\nProposals: the recorded particles + N(0, {noise_std:g}^2) m (eval.proposals=truth), not the visual prior: a diagnostic.\n"
-             if truth else "")
-    if exported is not None:
-        notes += f"\nProposals: the visual prior's, read from {paths['proposals']} (eval.proposals=exported; visual checkpoint {prop.attrs.get('visual_checkpoint')}).\n"
-    if result.sources:
-        header, rows = error_sources_rows(result.sources)
-        (out / "error_sources.csv").write_text(csv_text(header, rows))
-        notes += ("\n## Where the future error comes from (eval.error_sources)\n\nThe same prior rolled from the inferred inputs "
-                  "with some taken from the recorded truth; future MSE x 1e4.\n\n" + markdown(header, rows) + "\n")
-    text = write_tables([record], out, notes)
+    text = write_tables([record], out, report_notes(out, source, noise_std, paths["proposals"], prop, result.sources))
     _figures_and_tensorboard(cfg, scene, test, result, observed, out)
     log.info("evaluation of %s (%s) on %s:\n%s", record["method"], record["ablation"], env, text)
     return record
+
+
+def report_notes(out: Path, source: str, noise_std: float, proposals_path, prop, sources: dict) -> str:
+    """The notes under the evaluation's tables: where the proposals came from unless the visual prior made them,
+    and the error sources' table (also written to ``out``/error_sources.csv)."""
+    notes = ""
+    if source == "truth":
+        notes += f"\nProposals: the recorded particles + N(0, {noise_std:g}^2) m (eval.proposals=truth), not the visual prior: a diagnostic.\n"
+    if prop is not None:
+        notes += f"\nProposals: the visual prior's, read from {proposals_path} (eval.proposals=exported; visual checkpoint {prop.attrs.get('visual_checkpoint')}).\n"
+    if sources:
+        header, rows = error_sources_rows(sources)
+        (out / "error_sources.csv").write_text(csv_text(header, rows))
+        notes += ("\n## Where the future error comes from (eval.error_sources)\n\nThe same prior rolled from the inferred inputs "
+                  "with some taken from the recorded truth; future MSE x 1e4.\n\n" + markdown(header, rows) + "\n")
+    return notes
+
+
+def exported_test_proposals(cfg: DictConfig, path: Path, test, observed: int, window_pool: str, n_particles: int):
+    """The test videos' proposals as task=export_proposals wrote them to ``path``, for the frames the evaluation reads."""
+    start = cfg.env.get("start_frame", 0)
+    frames = start + proposed_frames(observed, cfg.eval.get("max_observed", 20), test.positions.shape[1], start)
+    prop = exported_proposals(path, test.rollout_ids, frames, window_pool)
+    if prop.positions.shape[2] != n_particles:
+        raise ValueError(f"{path}: proposals of {prop.positions.shape[2]} particles, the checkpoints expect {n_particles}")
+    return prop
+
+
+def add_per_video(record: dict, result, test, scene, observed: int, last: int) -> dict[int, torch.Tensor]:
+    """Add to ``record`` the breakdown of the T+``last`` error by video and by what was inferred for it, and each
+    video's parameter error, rigidness reading and future error (paired by task=compare). Returns T+k -> [R]
+    the future error at Table 2's horizons and ``last``, for params.csv."""
+    names = list(scene.param_names)
+    record[f"breakdown@{last}"] = error_breakdown(result.prediction, result.truth, torch.as_tensor(scene.instance), torch.cat([test.params, result.params], 1),
+                                                  last, names + [f"inferred_{n}" for n in names])
+    record[PER_VIDEO_PARAM] = per_video_map(test.rollout_ids, result.param_error)
+    for name, values in result.rigidness_correct.items():
+        record[PER_VIDEO_RIGIDNESS.format(observed, name)] = per_video_map(test.rollout_ids, values)
+    errors = {}
+    for step in sorted({k for k in HORIZONS if k <= last} | {last}):
+        errors[step] = rollout_mse_x1e4(result.prediction, result.truth, step)
+        record[PER_VIDEO.format(step)] = per_video_map(test.rollout_ids, errors[step])
+    return errors
 
 
 def trained_window_pool(cfg: DictConfig, inference_cfg: DictConfig) -> str:

@@ -97,7 +97,7 @@ def evaluate_identifiability(model: DynamicsPrior, scene: Scene, test: Rollouts,
         last = start_frame + (n_frames if target == "proposals" else h) - 1
         if proposals.positions.shape[0] < n or not torch.equal(proposals.rollout_ids[:n], test.rollout_ids[:n]) or proposals.positions.shape[1] <= last:
             raise DatasetError(f"{path}: proposals do not cover the first {n} test rollouts' frames {first}..{last}; re-export with task=export_proposals "
-                               "(model.inference.net.rollout_target=proposals exports the frames past the observed window too)")
+                               "(rollout_target=proposals exports the frames past the observed window too)")
         frames = slice(first - start_frame, last - start_frame + 1)  # the window's frames taken from the proposals, one contiguous run
         positions[:, frames] = torch.where(kinematic[:, None], positions[:, frames], proposals.positions[:n, first : last + 1].to(positions))
     if history == "proposals_rigid":
@@ -114,7 +114,7 @@ def sweep_metrics(model: DynamicsPrior, scene: Scene, test: Rollouts, cfg: DictC
     ``rollout_l1_over_grid/<name>``);
     the scatter of oracle against truth goes to ``out/oracle_<name>.png``."""
     inf = cfg.model.inference
-    sweep = evaluate_identifiability(model, scene, test, cfg.data.root, inf.observed, inf.net.horizon, grid, max_rollouts, start_frame, history, refine,
+    sweep = evaluate_identifiability(model, scene, test, cfg.data.root, inf.observed, inf.horizon, grid, max_rollouts, start_frame, history, refine,
                                      rigidness, target)
     result: dict = {"param_sweep_history": history, "param_sweep_target": target, "param_grid": grid, "param_grid_refine": refine,
                     "param_sweep_rigidness": rigidness}
@@ -151,7 +151,7 @@ def rigidness_metrics(model: DynamicsPrior, scene: Scene, test: Rollouts, cfg: D
     ``rigidness_oracle_correct/<type>`` (docs/design.md)."""
     check_rigidness_grid(values)
     inf = cfg.model.inference
-    window = inference_window(scene, test, inf.observed, inf.net.horizon, start_frame, max_rollouts)
+    window = inference_window(scene, test, inf.observed, inf.horizon, start_frame, max_rollouts)
     model.eval()
     sweep = rigidness_sweep(model, *window, window[0].shape[1] - model.hparams.history, scene.instance_types,
                             torch.linspace(0.0, 1.0, values).tolist())
@@ -265,7 +265,7 @@ def check_identifiability(cfg: DictConfig) -> dict:
     if failed:
         detail = "; ".join(f"{n}: oracle {o:.1f}% against the midpoint's {m:.1f}% (needs < {spec.max_ratio} x)" for n, (o, m) in failed.items())
         message = (f"{path}: the prior's rollout loss does not identify {detail}. No inference module can ground it through this "
-                   f"prior: retrain it, or lengthen model.inference.net.horizon (task.identifiability.on_fail=warn goes on anyway)")
+                   f"prior: retrain it, or lengthen model.inference.horizon (task.identifiability.on_fail=warn goes on anyway)")
         if spec.on_fail == "stop":
             raise IdentifiabilityError(message)
         log.warning(message)

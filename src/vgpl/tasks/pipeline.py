@@ -153,15 +153,7 @@ def pipeline(cfg: DictConfig) -> dict:
         from vgpl.tasks.baseline import train_baseline
 
         trained["train_baseline"] = run("train_baseline", train_baseline)
-    records, curve_from = [], None
-    for a in cfg.task.ablations:  # the ablations that infer rigidness use one module: its curve is measured once
-        flags = ablation_config(a)
-        shared = {**OmegaConf.to_container(cfg.eval, resolve=True), "rigidness_curve_from": curve_from if flags.rigidness else None}
-        records.append(run(f"evaluate/{a}", evaluate, ablation=flags, eval=shared))
-        if flags.rigidness and curve_from is None:
-            curve_from = str(out / f"evaluate/{a}" / "metrics.json")
-    if baseline:
-        records.append(run("evaluate/densephysnet", evaluate, model={**OmegaConf.to_container(cfg.model, resolve=True), "name": "densephysnet"}))
+    records = evaluate_all(cfg, out, run, baseline)
     notes = ("" if identifiability.get("skipped") else identifiability_summary(identifiability)) + training_summary(trained, times, budget.given, together)
     text = write_tables(records, out, notes)
     print(text)
@@ -190,3 +182,18 @@ def training_summary(trained: dict[str, dict], times: dict[str, float], given: d
         at_once = f" side by side with {' and '.join(beside)}" if beside else ""
         lines.append(f"- {step}: {result['steps']} of {result['max_steps']} steps, {times.get(step, float('nan')):.0f} s{at_once}{cut}")
     return "\n".join(lines) + "\n"
+
+
+def evaluate_all(cfg: DictConfig, out: Path, run, baseline: bool) -> list[dict]:
+    """Every ablation's evaluation record, then DensePhysNet's with ``baseline``; ``run(step, task, **updates)``
+    runs one step. The ablations that infer rigidness use one module: its rigidness curve is measured once."""
+    records, curve_from = [], None
+    for a in cfg.task.ablations:
+        flags = ablation_config(a)
+        shared = {**OmegaConf.to_container(cfg.eval, resolve=True), "rigidness_curve_from": curve_from if flags.rigidness else None}
+        records.append(run(f"evaluate/{a}", evaluate, ablation=flags, eval=shared))
+        if flags.rigidness and curve_from is None:
+            curve_from = str(out / f"evaluate/{a}" / "metrics.json")
+    if baseline:
+        records.append(run("evaluate/densephysnet", evaluate, model={**OmegaConf.to_container(cfg.model, resolve=True), "name": "densephysnet"}))
+    return records

@@ -125,7 +125,7 @@ def evaluate_dynamics(cfg: DictConfig) -> dict:
         raise DatasetError(f"{root}/{scene.name}: {test.positions.shape[2]} particles, checkpoint {cfg.ckpt_path} expects {scene.n_particles}")
     starts = list(cfg.task.get("gradient_starts") or [])
     if starts:  # refused before an hour of rollouts, not after
-        check_window_starts(starts, test.positions.shape[1], cfg.model.inference.observed, cfg.model.inference.net.horizon)
+        check_window_starts(starts, test.positions.shape[1], cfg.model.inference.observed, cfg.model.inference.horizon)
     q_grid = rigidness_grid_option(cfg.task.get("rigidness_grid"))  # so is a grid without both labels
     sweep_rigidness = check_sweep_rigidness(cfg.task.get("param_sweep_rigidness"))
     sweep_history, sweep_target = cfg.task.get("param_sweep_history", "truth"), cfg.task.get("param_sweep_target", "truth")
@@ -152,6 +152,6 @@ def evaluate_dynamics(cfg: DictConfig) -> dict:
         write_metrics()
     if starts:
         inf = cfg.model.inference
-        result |= gradient_agreement_by_start(model, scene, test, inf.observed, inf.net.horizon, starts, out, cfg.eval.get("max_rollouts"))
+        result |= gradient_agreement_by_start(model, scene, test, inf.observed, inf.horizon, starts, out, cfg.eval.get("max_rollouts"))
         write_metrics()
     return result

@@ -8,13 +8,13 @@ import json
 import logging
 from pathlib import Path
 
-import hydra
 from omegaconf import DictConfig
 
 from vgpl.checkpoint import init_from_spec, load_stage, scene_of
 from vgpl.data.inference_windows import InferenceDataModule
 from vgpl.models.dynamics_prior import DynamicsPrior
-from vgpl.models.inference import InferenceModule
+from vgpl.models.inference import InferenceModule, instantiated
+from vgpl.models.rollout_target import ProposalsTarget, rollout_target
 from vgpl.tasks.stage import dynamics_stage, fit, setup_run, stage_checkpoint, stopping, validate_final
 
 log = logging.getLogger(__name__)
@@ -37,17 +37,26 @@ def ablation_prior(ablation: DictConfig) -> str:
 def inference_datamodule(cfg: DictConfig, scene) -> InferenceDataModule:
     """The inference module's windows as ``cfg.model.inference`` and ``cfg.env`` set them (not yet set up)."""
     spec = cfg.model.inference
-    return InferenceDataModule(cfg.data.root, scene, spec.observed, spec.net.horizon, spec.batch_size, cfg.env.get("start_frame", 0),
+    return InferenceDataModule(cfg.data.root, scene, spec.observed, spec.horizon, spec.batch_size, cfg.env.get("start_frame", 0),
                                spec.window_stride, spec.get("window_span"), val_span=spec.get("val_window_span"),
-                               window_pool=spec.get("window_pool", "last"), target_proposals=spec.net.get("rollout_target", "truth") == "proposals")
+                               window_pool=spec.get("window_pool", "last"), target_proposals=rollout_target(spec.net) == ProposalsTarget.name)
+
+
+def inference_module(cfg: DictConfig, scene) -> InferenceModule:
+    """The InferenceModule ``model.inference.net`` composes, for ``scene`` and the ablation's rigidness; its parts are built
+    by the module from their configs, so the checkpoint's hyperparameters are plain config."""
+    spec = cfg.model.inference
+    given = {"param_low": scene.param_low.tolist(), "param_high": scene.param_high.tolist(), "n_particles": scene.n_particles,
+             "n_instances": scene.n_instances, "radius": float(cfg.env.graph_radius), "instance_types": list(scene.instance_types)}
+    return instantiated(spec.net, _convert_="all", _recursive_=False, scene=given, horizon=int(spec.horizon), rigidness=bool(cfg.ablation.rigidness))
 
 
 def train_inference(cfg: DictConfig) -> dict:
     setup_run(cfg)
     scene = scene_of(cfg)
     spec = cfg.model.inference
-    if spec.net.get("param_rotation") and not scene.vertical_symmetry:
-        raise ValueError(f"model.inference.net.param_rotation=true: env={scene.name} is not symmetric about the vertical axis "
+    if spec.net.encoder.get("param_rotation") and not scene.vertical_symmetry:
+        raise ValueError(f"model.inference.net.encoder.param_rotation=true: env={scene.name} is not symmetric about the vertical axis "
                          f"(planes or sampling that a rotation would change); only RigidFall is")
     dynamics, _ = load_stage(stage_checkpoint(cfg, ablation_prior(cfg.ablation)), DynamicsPrior, env=scene.name)
     dm = inference_datamodule(cfg, scene)
@@ -57,11 +66,7 @@ def train_inference(cfg: DictConfig) -> dict:
     if source["proposals_source"] != "visual":
         log.warning("training on %s proposals (noise std %g m, task=export_proposals task.source=truth): a diagnostic, not the paper's VGPL",
                     source["proposals_source"], source["proposals_noise_std"])
-    model: InferenceModule = hydra.utils.instantiate(
-        spec.net, _convert_="all", param_low=scene.param_low.tolist(), param_high=scene.param_high.tolist(),
-        n_particles=scene.n_particles, n_instances=scene.n_instances, radius=cfg.env.graph_radius, rigidness=bool(cfg.ablation.rigidness),
-        instance_types=scene.instance_types,
-    )
+    model = inference_module(cfg, scene)
     model.set_stats(dynamics)  # the same units as the prior it is trained through
     model.attach_dynamics(dynamics)
     init_from_spec(model, spec, "inference", scene.name, scene.n_particles)

@@ -18,6 +18,7 @@ from vgpl.data.proposals import Proposals, proposal_source, propose_windows, tru
 from vgpl.data.shard import read_first_rollouts
 from vgpl.data.trajectories import load_split
 from vgpl.data.video import VideoDataModule
+from vgpl.models.rollout_target import future_proposal_frames
 from vgpl.models.visual_prior import VisualPrior
 from vgpl.tasks.stage import fit, setup_run, stage_checkpoint, stopping
 
@@ -90,8 +91,7 @@ def proposal_frames(cfg: DictConfig) -> int | None:
     evaluation proposes its own test frames, so nothing later is needed."""
     spec = cfg.model.inference
     span = spec.get("window_span")
-    net = spec.get("net") or {}
-    future = int(net.horizon) if net.get("rollout_target", "truth") == "proposals" else 0
+    future = future_proposal_frames(spec)
     return None if span is None else int(cfg.env.get("start_frame", 0) + span + spec.observed + future)
 
 
