@@ -36,8 +36,9 @@ from torch_geometric.nn import MLP
 from vgpl.data.vertical_symmetry import random_about_vertical
 from vgpl.metrics import correct_rigidness_prob, mean_per_type
 from vgpl.models.loss_runs import LossRuns
+from vgpl.models.rigidness_estimator import BlendRigidness
 from vgpl.models.rollout import rollout_runs
-from vgpl.models.rollout_target import ProposalsTarget
+from vgpl.models.rollout_target import ProposalsTarget, TruthTarget
 from vgpl.models.spatiotemporal_encoder import SpatioTemporalEncoder
 from vgpl.models.training_scheme import PaperScheme
 from vgpl.nn.normalisation import NormalisationBuffers
@@ -115,11 +116,11 @@ class InferenceModule(NormalisationBuffers, L.LightningModule):
         for the module of the w/o-rigidness ablation (Q = 0)."""
         super().__init__()
         self.save_hyperparameters()
-        self.encoder_options = Encoder(**OmegaConf.to_container(OmegaConf.create(encoder or {})))
-        self.training_runs = LossRuns(**OmegaConf.to_container(OmegaConf.create(training or {})))
-        self.scheme = built(scheme) or PaperScheme()
-        self.target = built(target) or built({"_target_": "vgpl.models.rollout_target.TruthTarget"})
-        self.estimator = built(rigidness_estimator) or built({"_target_": "vgpl.models.rigidness_estimator.BlendRigidness"})
+        self.encoder_options = Encoder(**(encoder or {}))
+        self.training_runs = LossRuns(**(training or {}))
+        self.scheme = PaperScheme() if scheme is None else built(scheme)
+        self.target = TruthTarget() if target is None else built(target)
+        self.estimator = BlendRigidness() if rigidness_estimator is None else built(rigidness_estimator)
         check_parts(scene, self.encoder_options, self.scheme, self.target, self.estimator, self.training_runs, horizon)
         self.register_normalisation(scene["param_low"], scene["param_high"])
         width, n_params = self.encoder_options.width, len(scene["param_low"])
